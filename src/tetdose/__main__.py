@@ -1,0 +1,7 @@
+"""``python -m tetdose`` runs the command-line interface."""
+
+import sys
+
+from tetdose.cli import main
+
+sys.exit(main())

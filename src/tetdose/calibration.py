@@ -1,0 +1,134 @@
+"""HU → mass density calibration: a piecewise-linear curve through (HU, g/cm³) nodes.
+
+The paper's eq. (1), ρ_M = a·ρ_H + b, is one segment of it. The default curve is the
+Schneider et al. (2000) HU–density table as tabulated by GATE (Schneider2000DensitiesTable):
+−1000 HU → 0.00121 g/cm³ … 3000 HU → 2.8 g/cm³. Outside the first and last node the density is
+held constant (a CT value below air is noise, not a lower density).
+
+The inverse (density → HU, for virtual CT) needs a rule because the Schneider curve is not
+monotonic (1.1199 g/cm³ at 100 HU, 1.0762 at 101 HU): we return the **lowest HU whose forward
+density reaches ρ**, ``HU(ρ) = min{h : f(h) ≥ ρ}``. Then ``f(HU(ρ)) = ρ`` for every ρ in range,
+and ``HU(f(h)) = h`` wherever the curve is increasing and not overtaken by an earlier part of it
+(for the default table: every HU except 101…~175, which map back onto 23…100).
+"""
+
+from __future__ import annotations
+
+import csv
+import os
+from dataclasses import dataclass
+
+import numpy as np
+
+from tetdose._typing import FloatArray
+from tetdose.errors import CalibrationError
+
+#: Schneider 2000 nodes (HU, g/cm³), as tabulated by GATE.
+SCHNEIDER_2000 = (
+    (-1000.0, 0.00121),
+    (-98.0, 0.93),
+    (-97.0, 0.930486),
+    (14.0, 1.03),
+    (23.0, 1.031),
+    (100.0, 1.1199),
+    (101.0, 1.0762),
+    (1600.0, 1.9642),
+    (3000.0, 2.8),
+)
+
+
+@dataclass(frozen=True, eq=False)
+class HUCalibration:
+    """Piecewise-linear HU → density [g/cm³] curve through ``(hu, density_g_cm3)`` nodes."""
+
+    hu: FloatArray
+    density_g_cm3: FloatArray
+    name: str = "custom"
+
+    def __post_init__(self) -> None:
+        hu = np.asarray(self.hu, dtype=np.float64).reshape(-1)
+        rho = np.asarray(self.density_g_cm3, dtype=np.float64).reshape(-1)
+        if len(hu) != len(rho) or len(hu) < 2:
+            raise CalibrationError("a calibration needs at least two (HU, density) nodes")
+        if not (np.all(np.isfinite(hu)) and np.all(np.isfinite(rho))):
+            raise CalibrationError("calibration nodes must be finite numbers")
+        if np.any(np.diff(hu) <= 0):
+            i = int(np.flatnonzero(np.diff(hu) <= 0)[0])
+            raise CalibrationError(
+                f"calibration HU values must be strictly increasing (row {i + 2}: {hu[i + 1]:g} "
+                f"after {hu[i]:g}); sort the table and remove duplicate HU"
+            )
+        if np.any(rho < 0):
+            raise CalibrationError("calibration densities must be non-negative")
+        object.__setattr__(self, "hu", hu)
+        object.__setattr__(self, "density_g_cm3", rho)
+        object.__setattr__(self, "_inverse", _inverse_pieces(hu, rho))
+
+    @classmethod
+    def schneider2000(cls) -> HUCalibration:
+        """The default curve: Schneider et al. 2000 (Phys. Med. Biol. 45:459), GATE's table."""
+        nodes = np.array(SCHNEIDER_2000)
+        return cls(nodes[:, 0], nodes[:, 1], name="schneider2000")
+
+    @classmethod
+    def linear(cls, slope: float, intercept: float, hu_range: tuple[float, float] = (-1000, 3000)
+               ) -> HUCalibration:
+        """One segment, the paper's eq. (1): ρ = slope·HU + intercept."""
+        hu = np.array(hu_range, dtype=np.float64)
+        return cls(hu, slope * hu + intercept, name=f"linear({slope:g}, {intercept:g})")
+
+    @classmethod
+    def from_csv(cls, path: str | os.PathLike[str]) -> HUCalibration:
+        """Read nodes from a CSV: two columns (HU, density in g/cm³); a header line is allowed."""
+        rows: list[tuple[float, float]] = []
+        try:
+            with open(path, newline="") as f:
+                for line_no, row in enumerate(csv.reader(f), start=1):
+                    cells = [c.strip() for c in row if c.strip()]
+                    if not cells or cells[0].startswith("#"):
+                        continue
+                    try:
+                        rows.append((float(cells[0]), float(cells[1])))
+                    except (ValueError, IndexError):
+                        if rows:
+                            raise CalibrationError(
+                                f"{path}:{line_no}: expected two numbers (HU, g/cm³), got {row}"
+                            ) from None
+        except OSError as exc:
+            raise CalibrationError(f"cannot read calibration {path}: {exc.strerror}") from exc
+        if not rows:
+            raise CalibrationError(f"{path} holds no (HU, density) rows")
+        arr = np.array(rows)
+        return cls(arr[:, 0], arr[:, 1], name=os.fspath(path))
+
+    def density(self, hu: np.ndarray | float) -> np.ndarray:
+        """Density [g/cm³] for CT numbers [HU] (held constant beyond the end nodes)."""
+        return np.interp(np.asarray(hu, dtype=np.float64), self.hu, self.density_g_cm3)
+
+    __call__ = density
+
+    def hu_of(self, density_g_cm3: np.ndarray | float) -> np.ndarray:
+        """Inverse: the lowest HU whose density reaches ``density_g_cm3`` (see module doc)."""
+        lo, hi, h_lo, h_hi = self._inverse  # type: ignore[attr-defined]
+        rho = np.clip(np.asarray(density_g_cm3, dtype=np.float64), lo[0], hi[-1])
+        p = np.minimum(np.searchsorted(hi, rho, side="left"), len(hi) - 1)
+        span = hi[p] - lo[p]
+        t = np.divide(rho - lo[p], span, out=np.zeros_like(rho), where=span > 0)
+        return h_lo[p] + t * (h_hi[p] - h_lo[p])
+
+
+def _inverse_pieces(hu: FloatArray, rho: FloatArray) -> tuple[FloatArray, ...]:
+    """Pieces (ρ_lo, ρ_hi, HU_lo, HU_hi) of ``HU(ρ) = min{h : f(h) ≥ ρ}`` for a continuous f."""
+    lo, hi, h_lo, h_hi = [rho[0]], [rho[0]], [hu[0]], [hu[0]]
+    running = rho[0]
+    for a in range(len(hu) - 1):
+        d0, d1, g0, g1 = rho[a], rho[a + 1], hu[a], hu[a + 1]
+        if d1 <= running:
+            continue
+        start = g0 if d0 >= running else g0 + (running - d0) / (d1 - d0) * (g1 - g0)
+        lo.append(running)
+        hi.append(d1)
+        h_lo.append(start)
+        h_hi.append(g1)
+        running = d1
+    return tuple(np.array(v) for v in (lo, hi, h_lo, h_hi))

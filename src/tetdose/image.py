@@ -1,0 +1,152 @@
+"""ImageGrid and Image: voxel data with SimpleITK/DICOM geometry (origin, spacing, direction).
+
+Conventions (those of SimpleITK): ``size = (nx, ny, nz)`` counts voxels along the grid axes;
+``array`` has numpy shape ``(nz, ny, nx)``; voxel ``(i, j, k)`` has its centre at
+``origin + direction @ ((i, j, k) * spacing)`` [mm] and spans ±spacing/2 about it. The flat
+voxel id used by the sparse overlap matrices is ``(k * ny + j) * nx + i`` (C order of ``array``).
+
+The *grid frame* of a point is ``q = directionᵀ (p − origin)`` [mm]: a rigid change of frame in
+which voxel faces are the planes ``q_a = (n − ½) spacing_a``. Volumes are invariant under it, so
+every exact volume computation runs in the grid frame and honours any orthonormal direction.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+
+from tetdose._typing import FloatArray
+from tetdose.errors import GeometryMismatchError, ImageError
+
+#: Largest |DᵀD − I| accepted for a direction matrix.
+ORTHONORMAL_TOL = 1e-6
+
+
+@dataclass(frozen=True, eq=False)
+class ImageGrid:
+    """Geometry of a 3-D voxel grid: origin [mm], spacing [mm], direction cosines, size."""
+
+    origin_mm: FloatArray
+    spacing_mm: FloatArray
+    direction: FloatArray
+    size: tuple[int, int, int]
+
+    def __post_init__(self) -> None:
+        origin = np.asarray(self.origin_mm, dtype=np.float64).reshape(3)
+        spacing = np.asarray(self.spacing_mm, dtype=np.float64).reshape(3)
+        direction = np.asarray(self.direction, dtype=np.float64).reshape(3, 3)
+        size = tuple(int(n) for n in self.size)
+        if len(size) != 3 or min(size) < 1:
+            raise ImageError(f"image size must be three positive counts, got {self.size}")
+        if not (np.all(np.isfinite(spacing)) and np.all(spacing > 0)):
+            raise ImageError(f"voxel spacing must be positive, got {spacing.tolist()} mm")
+        if not np.all(np.isfinite(origin)):
+            raise ImageError(f"image origin must be finite, got {origin.tolist()}")
+        if np.abs(direction.T @ direction - np.eye(3)).max() > ORTHONORMAL_TOL:
+            raise ImageError(
+                "the image direction matrix is not orthonormal (sheared or scaled grid); "
+                "resample the image onto an orthonormal grid first"
+            )
+        object.__setattr__(self, "origin_mm", origin)
+        object.__setattr__(self, "spacing_mm", spacing)
+        object.__setattr__(self, "direction", direction)
+        object.__setattr__(self, "size", size)
+
+    @property
+    def shape(self) -> tuple[int, int, int]:
+        """Numpy shape of the voxel array, (nz, ny, nx)."""
+        return self.size[2], self.size[1], self.size[0]
+
+    @property
+    def n_voxels(self) -> int:
+        return int(np.prod(self.size))
+
+    @property
+    def voxel_volume_mm3(self) -> float:
+        return float(np.prod(self.spacing_mm))
+
+    @cached_property
+    def affine(self) -> FloatArray:
+        """4×4 matrix mapping homogeneous voxel indices (i, j, k, 1) to patient mm."""
+        a = np.eye(4)
+        a[:3, :3] = self.direction * self.spacing_mm[None, :]
+        a[:3, 3] = self.origin_mm
+        return a
+
+    def to_grid_frame(self, points_mm: FloatArray) -> FloatArray:
+        """Patient points [mm] → grid-frame coordinates q = Dᵀ(p − origin) [mm]."""
+        return np.ascontiguousarray((np.asarray(points_mm) - self.origin_mm) @ self.direction)
+
+    def index_to_physical(self, index: FloatArray) -> FloatArray:
+        """Continuous voxel indices (…, 3) in (i, j, k) order → patient points [mm]."""
+        return np.asarray(index) * self.spacing_mm @ self.direction.T + self.origin_mm
+
+    def physical_to_index(self, points_mm: FloatArray) -> FloatArray:
+        """Patient points [mm] → continuous voxel indices (i, j, k)."""
+        return self.to_grid_frame(points_mm) / self.spacing_mm
+
+    def voxel_centers_mm(self) -> FloatArray:
+        """(n_voxels, 3) centres [mm] in flat voxel-id order."""
+        k, j, i = np.meshgrid(*(np.arange(n) for n in self.shape), indexing="ij")
+        idx = np.stack([i.ravel(), j.ravel(), k.ravel()], axis=1).astype(np.float64)
+        return self.index_to_physical(idx)
+
+    def bounds_grid_frame(self) -> tuple[FloatArray, FloatArray]:
+        """Grid-frame box [mm] covered by the voxels (outer faces)."""
+        return -0.5 * self.spacing_mm, (np.array(self.size) - 0.5) * self.spacing_mm
+
+    def same_as(self, other: ImageGrid, *, tol_mm: float = 1e-4) -> bool:
+        return (
+            self.size == other.size
+            and np.allclose(self.origin_mm, other.origin_mm, atol=tol_mm, rtol=0)
+            and np.allclose(self.spacing_mm, other.spacing_mm, atol=tol_mm, rtol=0)
+            and np.allclose(self.direction, other.direction, atol=1e-6, rtol=0)
+        )
+
+    def require_same(self, other: ImageGrid, what: str = "images") -> None:
+        if not self.same_as(other):
+            raise GeometryMismatchError(
+                f"{what} are not on the same grid (size {self.size} vs {other.size}, origin "
+                f"{self.origin_mm.tolist()} vs {other.origin_mm.tolist()}); resample one onto "
+                "the other first"
+            )
+
+
+@dataclass(frozen=True, eq=False)
+class Image:
+    """A scalar image: ``array`` of numpy shape (nz, ny, nx) on ``grid``."""
+
+    array: np.ndarray
+    grid: ImageGrid
+
+    def __post_init__(self) -> None:
+        arr = np.asarray(self.array)
+        if arr.shape != self.grid.shape:
+            raise ImageError(f"array shape {arr.shape} does not match grid shape {self.grid.shape}")
+        object.__setattr__(self, "array", arr)
+
+    def with_array(self, array: np.ndarray) -> Image:
+        """The same grid with new voxel values."""
+        return Image(np.asarray(array), self.grid)
+
+    def to_sitk(self):  # noqa: ANN201 - SimpleITK type
+        import SimpleITK as sitk
+
+        img = sitk.GetImageFromArray(np.ascontiguousarray(self.array))
+        img.SetOrigin(tuple(self.grid.origin_mm))
+        img.SetSpacing(tuple(self.grid.spacing_mm))
+        img.SetDirection(tuple(self.grid.direction.ravel()))
+        return img
+
+    @staticmethod
+    def from_sitk(img) -> Image:  # noqa: ANN001 - SimpleITK type
+        import SimpleITK as sitk
+
+        if img.GetDimension() != 3:
+            raise ImageError(f"expected a 3-D image, got {img.GetDimension()}-D")
+        if img.GetNumberOfComponentsPerPixel() != 1:
+            raise ImageError("expected a scalar image; use read_vector_image for displacement fields")
+        grid = ImageGrid(img.GetOrigin(), img.GetSpacing(), img.GetDirection(), img.GetSize())
+        return Image(sitk.GetArrayFromImage(img), grid)

@@ -1,0 +1,60 @@
+"""Small mesh and image builders shared by the lead's tests (obviously-correct constructions)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from tetdose.calibration import HUCalibration
+from tetdose.image import Image, ImageGrid
+from tetdose.mesh import TetMesh
+
+#: Kuhn (Freudenthal) split of the unit cube into 6 tetrahedra along the 0–7 diagonal; corners
+#: numbered by bits (x = 1, y = 2, z = 4). Consistent on a grid, hence conforming.
+KUHN = np.array([[0, 1, 3, 7], [0, 1, 5, 7], [0, 2, 3, 7], [0, 2, 6, 7], [0, 4, 5, 7],
+                 [0, 4, 6, 7]])
+
+
+def box_mesh(lo, hi, n, *, jitter: float = 0.0, seed: int = 0) -> TetMesh:
+    """A box [lo, hi] (mm) of n = (nx, ny, nz) cubes, 6 tets each; interior points jittered by
+    ``jitter`` × cell size (seeded)."""
+    lo, hi, n = np.asarray(lo, float), np.asarray(hi, float), np.asarray(n)
+    axes = [np.linspace(lo[d], hi[d], n[d] + 1) for d in range(3)]
+    z, y, x = np.meshgrid(axes[2], axes[1], axes[0], indexing="ij")
+    pts = np.stack([x.ravel(), y.ravel(), z.ravel()], axis=1)
+    def pid(i, j, k):
+        return (k * (n[1] + 1) + j) * (n[0] + 1) + i
+    tets = []
+    for k in range(n[2]):
+        for j in range(n[1]):
+            for i in range(n[0]):
+                corner = [pid(i + (c & 1), j + ((c >> 1) & 1), k + ((c >> 2) & 1)) for c in range(8)]
+                tets.extend([[corner[v] for v in t] for t in KUHN])
+    if jitter:
+        rng = np.random.default_rng(seed)
+        h = (hi - lo) / n
+        interior = np.all((pts > lo + 1e-9) & (pts < hi - 1e-9), axis=1)
+        pts[interior] += rng.uniform(-jitter, jitter, (interior.sum(), 3)) * h
+    return TetMesh(pts, np.array(tets)).with_fixed_orientation()
+
+
+def grid_for(lo, hi, spacing, direction=None) -> ImageGrid:
+    """An axis-aligned grid whose voxels' outer faces are exactly the box [lo, hi] (mm)."""
+    lo, hi, spacing = (np.asarray(v, float) for v in (lo, hi, spacing))
+    size = np.round((hi - lo) / spacing).astype(int)
+    return ImageGrid(lo + spacing / 2, spacing, np.eye(3) if direction is None else direction,
+                     tuple(size))
+
+
+def density_image(grid: ImageGrid, fn) -> Image:
+    """Image of fn(x, y, z) [g/cm³] sampled at voxel centres."""
+    c = grid.voxel_centers_mm()
+    return Image(fn(c[:, 0], c[:, 1], c[:, 2]).reshape(grid.shape), grid)
+
+
+#: An identity-like calibration (HU value = density × 1000) so tests can state densities directly.
+MILLI = HUCalibration.linear(0.001, 0.0, hu_range=(0.0, 1e6))
+
+
+def as_hu(image: Image) -> Image:
+    """Density image → HU image under :data:`MILLI`."""
+    return image.with_array(image.array * 1000.0)
