@@ -4,11 +4,12 @@ import json
 
 import numpy as np
 import pytest
-from helpers import box_mesh, density_image, grid_for
 
 from tetdose.calibration import HUCalibration
 from tetdose.cli import main
 from tetdose.io import read_image, read_mesh, write_image, write_mesh
+
+from helpers import box_mesh, density_image, grid_for
 
 CAL = HUCalibration.schneider2000()
 

@@ -4,7 +4,6 @@ import meshio
 import numpy as np
 import pytest
 import SimpleITK as sitk
-from helpers import box_mesh
 
 from tetdose._atomic import atomic_write_dir, atomic_write_file
 from tetdose.errors import ImageError, MeshError
@@ -13,6 +12,7 @@ from tetdose.io import read_image, read_mesh, write_image, write_mesh
 from tetdose.mesh import TetMesh
 
 from conftest import SHARED
+from helpers import box_mesh
 
 
 def test_vtu_round_trip_keeps_arrays_and_region(tmp_path):

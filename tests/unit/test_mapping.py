@@ -3,7 +3,6 @@
 import numpy as np
 import pytest
 
-from helpers import MILLI, as_hu, box_mesh, density_image, grid_for
 from tetdose.image import Image
 from tetdose.mapping import map_density
 from tetdose.mapping.metrics import evaluate
@@ -17,6 +16,8 @@ from tetdose.mapping.solve import (
 )
 from tetdose.mesh import PARENT_POINT
 from tetdose.voxelize import voxelize
+
+from helpers import MILLI, as_hu, box_mesh, density_image, grid_for
 
 GRID = grid_for([0, 0, 0], [20, 20, 20], [1.0, 1.25, 2.0])
 MESH = box_mesh([2, 2, 2], [18, 17, 16], (5, 5, 4), jitter=0.2)

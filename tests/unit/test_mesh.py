@@ -2,10 +2,11 @@
 
 import numpy as np
 import pytest
-from helpers import box_mesh
 
 from tetdose.errors import MeshError, TopologyMismatchError
 from tetdose.mesh import FACE_VERTICES, TetMesh, signed_volumes_mm3
+
+from helpers import box_mesh
 
 
 def test_box_volumes_sum_to_box_and_are_positive():

@@ -3,11 +3,12 @@
 import numpy as np
 import pytest
 
-from helpers import box_mesh, grid_for
 from tetdose.errors import GeometryMismatchError
 from tetdose.image import ImageGrid
 from tetdose.mapping.overlap import compute_overlap
 from tetdose.mesh import TetMesh
+
+from helpers import box_mesh, grid_for
 
 
 def random_tets(n, lo, hi, seed):
