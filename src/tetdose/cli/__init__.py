@@ -20,6 +20,8 @@ COMMANDS = {
     "map": ("tetdose.cli._map", "map CT density onto a tetrahedral mesh (vertex densities)"),
     "voxelize": ("tetdose.cli._voxelize", "virtual CT: mesh density back onto a CT grid"),
     "evaluate": ("tetdose.cli._evaluate", "mapping error metrics, error images and figures"),
+    "deform": ("tetdose.cli._motion", "breathing phases with mass-conserving vertex density"),
+    "4dct": ("tetdose.cli._motion", "4D virtual CT: every phase voxelized on a reference CT"),
     "phantom": ("tetdose.cli._phantom", "write a seeded phantom: CT, labels and tet mesh"),
 }
 

@@ -1,0 +1,137 @@
+"""``tetdose deform`` (breathing phases with mass-conserving density) and ``tetdose 4dct``.
+
+Both subcommands live here; ``add_args`` tells them apart by the subparser's name (the last
+word of ``parser.prog``) and records it for ``run``.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from tetdose._atomic import atomic_write_dir
+
+if TYPE_CHECKING:
+    from tetdose.mesh import TetMesh
+    from tetdose.motion import PhaseSeries
+
+
+def add_args(parser: argparse.ArgumentParser) -> None:
+    command = parser.prog.split()[-1]
+    parser.set_defaults(_motion_command=command)
+    if command == "deform":
+        _add_deform_args(parser)
+    else:
+        _add_4dct_args(parser)
+
+
+def run(args: argparse.Namespace) -> int:
+    return _run_deform(args) if args._motion_command == "deform" else _run_4dct(args)
+
+
+def _add_deform_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--mesh", required=True, type=Path,
+                   help="reference mesh with point_data 'density' (from `tetdose map`)")
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--phases", nargs="+", type=Path, metavar="VTU",
+                     help="phase meshes: the reference's cells on moved points")
+    src.add_argument("--dvf", nargs="+", type=Path, metavar="IMAGE",
+                     help="displacement fields (mm, reference → phase), one per phase")
+    src.add_argument("--surfaces", nargs="+", type=Path, metavar="SURFACE",
+                     help="target surfaces (STL/OBJ/PLY), one per phase: ICP + elastic FEM")
+    src.add_argument("--breathing", action="store_true",
+                     help="built-in Lujan cos^2n breathing (reference = end-exhale)")
+    p.add_argument("--amplitude-mm", type=float, default=10.0,
+                   help="breathing: cranio-caudal amplitude at the diaphragm [mm]")
+    p.add_argument("--period-s", type=float, default=4.0, help="breathing: period [s]")
+    p.add_argument("--n-phases", type=int, default=10, help="breathing: number of phases")
+    p.add_argument("--shape-n", type=int, default=3, help="breathing: exponent n of cos^2n")
+    p.add_argument("--phase-percent", nargs="+", type=float,
+                   help="phase positions in the cycle [%%] (default 100·k/K)")
+    p.add_argument("--method", choices=("l2", "lsq"), default="l2",
+                   help="density update: mass-conserving L2 projection or the paper's LSQ")
+    p.add_argument("--increments", type=int, default=4, help="FEM load increments")
+    p.add_argument("--young-kpa", type=float, default=7.8, help="FEM Young's modulus [kPa]")
+    p.add_argument("--poisson", type=float, default=0.45, help="FEM Poisson's ratio")
+    p.add_argument("-o", "--output", required=True, type=Path,
+                   help="output folder: one VTU per phase + phases.pvd + mass_report.csv")
+
+
+def _add_4dct_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--phases", required=True, type=Path, help="folder written by `deform`")
+    p.add_argument("--like", required=True, type=Path,
+                   help="reference CT (DICOM folder or image file): grid and outside tissue")
+    p.add_argument("-o", "--output", required=True, type=Path, help="output folder")
+    p.add_argument("--format", choices=("dicom", "nrrd"), default="dicom")
+    p.add_argument("--background", default="ct",
+                   help="outside the mesh: 'ct' (reference CT), 'air' or a density [g/cm³]")
+    p.add_argument("--dvf", nargs="+", type=Path, metavar="IMAGE",
+                   help="one DVF per phase: also warp the CT outside the mesh")
+    p.add_argument("--partial", choices=("mass", "extrapolate"), default="mass",
+                   help="voxels partly inside the mesh (see tetdose.voxelize)")
+
+
+def _motion_series(args: argparse.Namespace, reference: TetMesh) -> PhaseSeries:
+    import numpy as np
+
+    from tetdose.motion import BreathingModel, PhaseSeries, read_dvf
+
+    pct = args.phase_percent
+    if args.breathing:
+        model = BreathingModel(args.amplitude_mm, args.period_s, args.shape_n)
+        return model.series(reference, args.n_phases)
+    if args.phases:
+        return PhaseSeries.read(reference, args.phases, phase_percent=pct)
+    if args.dvf:
+        pts = [read_dvf(f).moved(reference.points_mm) for f in args.dvf]
+    else:
+        from tetdose.motion.fem import surface_driven_points
+        from tetdose.motion.surface import read_surface
+
+        pts = [surface_driven_points(reference, read_surface(f), n_increments=args.increments,
+                                     young_kpa=args.young_kpa, poisson=args.poisson)
+               for f in args.surfaces]
+    return PhaseSeries(reference, np.stack(pts), pct)
+
+
+def _run_deform(args: argparse.Namespace) -> int:
+    from tetdose.io import read_mesh
+    from tetdose.motion import update_series
+    from tetdose.motion.conserve import reference_density
+
+    reference = read_mesh(args.mesh)
+    rho0 = reference_density(reference)
+    series, reports = update_series(_motion_series(args, reference), rho0, method=args.method)
+    with atomic_write_dir(args.output) as tmp:
+        series.write(tmp)
+        rows = ["phase_percent,time_weight,total_mass_g,mass_change_rel,min_density_g_cm3,"
+                "max_density_g_cm3,worst_volume_change"]
+        rows += [f"{r.phase_percent!r},{w!r},{r.total_mass_g!r},{r.mass_change_rel!r},"
+                 f"{r.min_density_g_cm3!r},{r.max_density_g_cm3!r},{r.worst_volume_change!r}"
+                 for r, w in zip(reports, series.time_weight, strict=True)]
+        (tmp / "mass_report.csv").write_text("\n".join(rows) + "\n")
+    for r in reports:
+        print(r.line())
+    print(f"wrote {series.n_phases} phases ({args.method}) to {args.output}")
+    return 0
+
+
+def _run_4dct(args: argparse.Namespace) -> int:
+    from tetdose.io import read_image
+    from tetdose.motion import PhaseSeries, read_dvf
+    from tetdose.motion.ct4d import virtual_4dct, write_4dct
+
+    series = PhaseSeries.read(None, args.phases)
+    try:
+        background: str | float = float(args.background)
+    except ValueError:
+        background = args.background
+    dvfs = None if args.dvf is None else [read_dvf(f) for f in args.dvf]
+    ct = read_image(args.like)
+    images = virtual_4dct(series, ct, background=background, dvfs=dvfs, partial=args.partial,
+                          progress=not args.quiet)
+    out = write_4dct(images, args.output, phase_percent=series.phase_percent, fmt=args.format,
+                     reference=args.like)
+    print(f"wrote {len(out)} phases ({args.format}) to {args.output}")
+    return 0
