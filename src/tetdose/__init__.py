@@ -19,20 +19,38 @@ from tetdose.io import read_ct, read_image, read_mesh, write_image, write_mesh
 from tetdose.mapping import DensityMap, map_density
 from tetdose.mapping.metrics import evaluate
 from tetdose.mesh import TetMesh
+from tetdose.motion import BreathingModel, PhaseSeries, update_series
+from tetdose.study import StudyConfig, run_study
+from tetdose.transport import (
+    DoseResult,
+    PhotonSource,
+    Plan,
+    TransportSettings,
+    run_mesh_transport,
+    run_voxel_transport,
+    simulate,
+)
 from tetdose.voxelize import voxelize
 
 __all__ = [
+    "BreathingModel",
     "CalibrationError",
     "DensityMap",
+    "DoseResult",
     "GeometryMismatchError",
     "HUCalibration",
     "Image",
     "ImageError",
     "ImageGrid",
     "MeshError",
+    "PhaseSeries",
+    "PhotonSource",
+    "Plan",
+    "StudyConfig",
     "TetMesh",
     "TetdoseError",
     "TopologyMismatchError",
+    "TransportSettings",
     "__version__",
     "evaluate",
     "map_density",
@@ -40,6 +58,11 @@ __all__ = [
     "read_ct",
     "read_image",
     "read_mesh",
+    "run_mesh_transport",
+    "run_study",
+    "run_voxel_transport",
+    "simulate",
+    "update_series",
     "voxelize",
     "write_ct_series",
     "write_ct_series_4d",

@@ -22,6 +22,11 @@ COMMANDS = {
     "evaluate": ("tetdose.cli._evaluate", "mapping error metrics, error images and figures"),
     "deform": ("tetdose.cli._motion", "breathing phases with mass-conserving vertex density"),
     "4dct": ("tetdose.cli._motion", "4D virtual CT: every phase voxelized on a reference CT"),
+    "dose": ("tetdose.cli._dose", "Monte Carlo photon dose per tetrahedron or per voxel"),
+    "compare": ("tetdose.cli._compare", "mesh vs voxel dose: gamma, DVH, profiles, HTML report"),
+    "export-dose": ("tetdose.cli._compare", "dose (mesh or image) → DICOM RT Dose on a CT grid"),
+    "dose4d": ("tetdose.cli._dose4d", "dose on every breathing phase, accumulated on the mesh"),
+    "demo": ("tetdose.cli._demo", "the whole study on the built-in thorax phantom, with a report"),
     "phantom": ("tetdose.cli._phantom", "write a seeded phantom: CT, labels and tet mesh"),
 }
 

@@ -45,6 +45,17 @@ def virtual_4dct(series: PhaseSeries, ct_hu: Image, *, calibration: HUCalibratio
                  dvfs: Sequence[DisplacementField] | None = None, partial: str = "mass",
                  progress: bool = False) -> list[Image]:
     """One HU image per phase of ``series`` (which must carry densities) on ``ct_hu``'s grid."""
+    cal = calibration or HUCalibration.schneider2000()
+    densities = phase_densities(series, ct_hu, calibration=cal, background=background, dvfs=dvfs,
+                                partial=partial, progress=progress)
+    return [to_hu(rho, cal) for rho in densities]
+
+
+def phase_densities(series: PhaseSeries, ct_hu: Image, *,
+                    calibration: HUCalibration | None = None, background: str | float = "ct",
+                    dvfs: Sequence[DisplacementField] | None = None, partial: str = "mass",
+                    progress: bool = False) -> list[Image]:
+    """The density [g/cm³] behind :func:`virtual_4dct`: each phase voxelized on ``ct_hu``'s grid."""
     if series.density_g_cm3 is None:
         raise MeshError("the phases carry no density; run `tetdose deform` (or "
                         "conserve.update_series) first")
@@ -55,11 +66,15 @@ def virtual_4dct(series: PhaseSeries, ct_hu: Image, *, calibration: HUCalibratio
     images = []
     for k in tqdm(range(series.n_phases), desc="4D-CT phases", disable=not progress):
         bg = _background(background, ct_density, None if dvfs is None else dvfs[k])
-        rho = voxelize(series.mesh(k), series.density_g_cm3[k], ct_hu.grid, background=bg,
-                       partial=partial)
-        hu = np.clip(np.rint(cal.hu_of(rho.array)), HU_MIN, HU_MAX).astype(np.int16)
-        images.append(Image(hu, ct_hu.grid))
+        images.append(voxelize(series.mesh(k), series.density_g_cm3[k], ct_hu.grid,
+                               background=bg, partial=partial))
     return images
+
+
+def to_hu(density: Image, calibration: HUCalibration) -> Image:
+    """Density image [g/cm³] → int16 HU through the calibration's inverse, clipped to range."""
+    hu = np.clip(np.rint(calibration.hu_of(density.array)), HU_MIN, HU_MAX).astype(np.int16)
+    return Image(hu, density.grid)
 
 
 def _background(background: str | float, ct_density: Image,

@@ -1,0 +1,179 @@
+"""Transport speed: tet crossings/s (pure walk), photons/s and crossings/s with physics, mesh vs
+voxel time per history, 1 → 2 thread scaling, time to 1 % uncertainty (analog vs track-length).
+
+Run: ``NUMBA_CACHE_DIR=... .venv/bin/python bench/bench_transport.py [cubes_per_axis] [histories]``.
+A 200 mm water box of n³ cubes (6 tets each) and the matching n³ voxel grid (matched
+resolution: each voxel is exactly 6 tets); a 1.25 MeV 100 × 100 mm² parallel field along z.
+The first call of every kernel is a warm-up whose time is reported as compile/load time.
+Single-thread figures are CPU time (``time.process_time``, batch loop only), which the other jobs on a shared
+machine disturb less than wall time; thread scaling needs wall time, so it is repeated and the
+spread printed.
+"""
+
+from __future__ import annotations
+
+import itertools
+import sys
+import time
+
+import numba
+import numpy as np
+from numba import njit
+
+from tetdose.image import Image, ImageGrid
+from tetdose.mesh import TetMesh
+from tetdose.transport import (
+    PhotonSource,
+    Plan,
+    TransportSettings,
+    mesh_geometry,
+    morton_order,
+    simulate,
+)
+from tetdose.transport._geometry_tet import enter_mesh, exit_face, next_tet
+
+PLAN = Plan((PhotonSource("parallel", [0, 0, -150.0], [0, 0, 1], energies_mev=[1.25],
+                          field_mm=[100.0, 100.0]),))
+
+
+def box(n: int, size_mm: float = 200.0) -> tuple[TetMesh, Image]:
+    ax = np.linspace(-size_mm / 2, size_mm / 2, n + 1)
+    pts = np.stack(np.meshgrid(ax, ax, ax, indexing="ij"), -1).reshape(-1, 3)
+    vid = lambda i, j, k: (i * (n + 1) + j) * (n + 1) + k  # noqa: E731
+    tets = []
+    for c0 in itertools.product(range(n), repeat=3):
+        for perm in itertools.permutations(range(3)):
+            c = list(c0)
+            path = [vid(*c)]
+            for a in perm:
+                c[a] += 1
+                path.append(vid(*c))
+            tets.append(path)
+    mesh = TetMesh(pts, np.array(tets)).with_fixed_orientation()
+    mesh = mesh.with_data(point_data={"density": np.ones(len(pts))})
+    h = size_mm / n
+    grid = ImageGrid(np.full(3, -size_mm / 2 + h / 2), np.full(3, h), np.eye(3), (n, n, n))
+    return mesh, Image(np.ones(grid.shape), grid)
+
+
+@njit(cache=True)
+def _walk_rays(g, starts, dirs):
+    """Pure-absorber walk (no physics): count tetrahedron crossings of all rays."""
+    crossings = 0
+    for r in range(starts.shape[0]):
+        u, v, w = dirs[r, 0], dirs[r, 1], dirs[r, 2]
+        k, x, y, z, _ = enter_mesh(g, starts[r, 0], starts[r, 1], starts[r, 2], u, v, w)
+        entry = -1
+        while k >= 0:
+            f, t = exit_face(g, k, x, y, z, u, v, w, entry)
+            if f < 0:
+                break
+            x, y, z = x + t * u, y + t * v, z + t * w
+            k, entry = next_tet(g, k, f)
+            crossings += 1
+    return crossings
+
+
+def _best_cpu(fn, *args, repeat: int = 5):  # noqa: ANN001, ANN202
+    best, out = np.inf, None
+    for _ in range(repeat):
+        t0 = time.process_time()
+        out = fn(*args)
+        best = min(best, time.process_time() - t0)
+    return out, best
+
+
+def bench_walk(mesh: TetMesh) -> None:
+    rng = np.random.default_rng(0)
+    n = 20000
+    beam = (np.column_stack([rng.uniform(-90, 90, (n, 2)), np.full(n, -150.0)]),
+            rng.normal(size=(n, 3)) * [0.2, 0.2, 0.0] + [0, 0, 1.0])
+    # isotropic: from a sphere of radius 180 mm towards random points inside the box
+    aim = rng.uniform(-95, 95, (n, 3))
+    out = rng.normal(size=(n, 3))
+    out *= 180.0 / np.linalg.norm(out, axis=1, keepdims=True)
+    iso = (out, aim - out)
+    orders = {"as built (z fastest)": None, "Morton": morton_order(mesh.centroids_mm),
+              "random": rng.permutation(mesh.n_tets)}
+    for name, order in orders.items():
+        g = mesh_geometry(mesh, mesh.point_data["density"], np.zeros(mesh.n_tets, np.intp), order)
+        for rays, (starts, dirs) in (("beam rays", beam), ("isotropic rays", iso)):
+            dirs = dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
+            t0 = time.perf_counter()
+            _walk_rays(g, starts[:1], dirs[:1])
+            compile_s = time.perf_counter() - t0
+            count, cpu = _best_cpu(_walk_rays, g, starts, dirs)
+            print(f"pure walk, tets {name:20s} {rays:14s}: {count / cpu / 1e6:5.1f} M crossings/s"
+                  f" (1 core, CPU time, incl. entry; compile/load {compile_s:.1f} s)")
+
+
+def bench_transport(mesh: TetMesh, image: Image, n_hist: int) -> None:
+    numba.set_num_threads(1)
+    for geom, name in ((mesh, "mesh"), (image, "voxel")):
+        t0 = time.perf_counter()
+        simulate(geom, PLAN, TransportSettings(20, 2), progress=False)
+        print(f"{name}: compile/load + set-up {time.perf_counter() - t0:.1f} s")
+        for est in ("track_length", "analog"):
+            t0 = time.process_time()
+            r = simulate(geom, PLAN, TransportSettings(n_hist, 10, estimator=est), progress=False)
+            cpu = r.extra["cpu_s"]
+            if est == "track_length":
+                print(f"  {name:5s} set-up (geometry arrays, tables): "
+                      f"{time.process_time() - t0 - cpu:.2f} s CPU")
+            extra = (f", {r.crossings / cpu / 1e6:.1f} M crossings/s "
+                     f"({r.crossings / n_hist:.0f} per history)" if name == "mesh" else "")
+            print(f"  {name:5s} 1 thread {est:12s}: {n_hist / cpu:8.0f} photons/s, "
+                  f"{cpu / n_hist * 1e6:6.2f} µs/history (CPU){extra}; "
+                  f"tally {r.energy_per_batch_mev.nbytes / 2**20:.1f} MiB")
+
+
+def bench_threads(mesh: TetMesh, n_hist: int, repeat: int = 3) -> None:
+    if numba.config.NUMBA_NUM_THREADS < 2:
+        print("thread scaling: only one thread available")
+        return
+    walls: dict[int, list[float]] = {1: [], 2: []}
+    settings = TransportSettings(n_hist, 8)
+    for _ in range(repeat):
+        for threads in (1, 2):
+            numba.set_num_threads(threads)
+            walls[threads].append(simulate(mesh, PLAN, settings, progress=False).wall_s)
+    ratios = np.array(walls[1]) / np.array(walls[2])
+    print(f"mesh 1 → 2 threads ({repeat} pairs, wall): 1 thread {min(walls[1]):.2f}–"
+          f"{max(walls[1]):.2f} s, 2 threads {min(walls[2]):.2f}–{max(walls[2]):.2f} s; speed-up "
+          f"{min(walls[1]) / min(walls[2]):.2f}× (best/best), pairs {ratios.min():.2f}–"
+          f"{ratios.max():.2f}×")
+
+
+def bench_uncertainty(mesh: TetMesh, image: Image, n_hist: int) -> None:
+    """Time to 1 % relative uncertainty of the energy in a target region, σ ∝ 1/√N."""
+    numba.set_num_threads(1)
+    regions = {"on axis, depth 100 mm": (0.0, 0.0, 0.0), "off beam, x = 80 mm": (80.0, 0.0, 0.0)}
+    print("time to 1 % uncertainty in a 20 mm-radius sphere (1 thread, CPU time):")
+    print(f"  {'region':24s} {'geometry':8s} {'analog':>10s} {'track-length':>13s}")
+    for geom, name, centres in ((mesh, "mesh", mesh.centroids_mm),
+                                (image, "voxel", image.grid.voxel_centers_mm())):
+        times = {r: [] for r in regions}
+        for est in ("analog", "track_length"):
+            res = simulate(geom, PLAN, TransportSettings(n_hist, 20, estimator=est),
+                           progress=False)
+            cpu = res.extra["cpu_s"]
+            x = res.energy_per_batch_mev / res.histories_per_batch[:, None]
+            for reg, c in regions.items():
+                sel = np.linalg.norm(centres - np.array(c), axis=1) < 20.0
+                e = x[:, sel].sum(axis=1)
+                rel = e.std(ddof=1) / np.sqrt(len(e)) / e.mean()
+                times[reg].append(cpu * (rel / 0.01) ** 2)
+        for reg, (ta, tt) in times.items():
+            print(f"  {reg:24s} {name:8s} {ta:9.1f}s {tt:12.1f}s")
+
+
+if __name__ == "__main__":
+    n_cubes = int(sys.argv[1]) if len(sys.argv) > 1 else 40
+    n_hist = int(float(sys.argv[2])) if len(sys.argv) > 2 else 100_000
+    mesh, image = box(n_cubes)
+    print(f"water box 200 mm, {n_cubes}³ cubes: {mesh.n_tets} tets / {image.grid.n_voxels} voxels;"
+          f" {numba.config.NUMBA_NUM_THREADS} threads available")
+    bench_walk(mesh)
+    bench_transport(mesh, image, n_hist)
+    bench_threads(mesh, n_hist)
+    bench_uncertainty(mesh, image, n_hist // 2)

@@ -1,0 +1,177 @@
+"""Comparison report: dose slices, difference and gamma maps, DVHs, profiles → HTML + JSON.
+
+:func:`write_report` writes into one folder, atomically: ``report.html`` (self-contained, the PNG
+figures embedded as base64), one ``<figure>.png`` per figure, ``figures.json`` holding the data
+drawn in every figure (arrays as nested lists, NaN as null) and ``summary.json`` (the numbers of
+the summary table). Figures use matplotlib's Agg backend (no display needed).
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import io
+import json
+import os
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from tetdose._atomic import atomic_write_dir
+from tetdose.compare.dvh import DVH
+from tetdose.compare.gamma import GammaResult
+from tetdose.compare.profiles import Profile
+from tetdose.image import Image
+
+
+@dataclass
+class Figure:
+    """A rendered figure: its name, caption, PNG bytes and the data it shows."""
+
+    name: str
+    caption: str
+    png: bytes
+    data: dict[str, Any] = field(default_factory=dict)
+
+
+def _render(fig: Any) -> bytes:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=100, bbox_inches="tight")
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
+    return buf.getvalue()
+
+
+def _plt() -> Any:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def dose_slices_figure(a: Image, b: Image, *, labels: tuple[str, str] = ("mesh", "voxel"),
+                       k: int | None = None) -> Figure:
+    """Axial slice k (default: through the maximum of ``a``) of both doses and a − b."""
+    if k is None:
+        k = int(np.unravel_index(int(np.argmax(a.array)), a.array.shape)[0])
+    sa, sb = np.asarray(a.array[k], float), np.asarray(b.array[k], float)
+    diff = sa - sb
+    plt = _plt()
+    fig, axes = plt.subplots(1, 3, figsize=(13, 4))
+    vmax = max(float(sa.max()), float(sb.max()), 1e-30)
+    lim = max(float(np.abs(diff).max()), 1e-30)
+    for ax, img, title, kw in ((axes[0], sa, labels[0], {"vmin": 0, "vmax": vmax}),
+                               (axes[1], sb, labels[1], {"vmin": 0, "vmax": vmax}),
+                               (axes[2], diff, f"{labels[0]} − {labels[1]}",
+                                {"cmap": "RdBu_r", "vmin": -lim, "vmax": lim})):
+        im = ax.imshow(img, origin="lower", **kw)
+        ax.set_title(f"{title} [Gy], slice k={k}")
+        fig.colorbar(im, ax=ax, shrink=0.8)
+    data = {"k": k, labels[0]: sa, labels[1]: sb, "difference_gy": diff}
+    return Figure(f"dose_slice_k{k}", f"Axial slice {k}: doses and difference [Gy]",
+                  _render(fig), data)
+
+
+def gamma_figure(result: GammaResult, *, k: int) -> Figure:
+    """Gamma map of axial slice k (NaN = not evaluated; values above 2 clipped for display)."""
+    g = result.gamma[k]
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(6, 4.5))
+    im = ax.imshow(np.clip(g, 0, 2), origin="lower", cmap="RdYlGn_r", vmin=0, vmax=2)
+    crit = result.summary()["criterion"]
+    ax.set_title(f"γ {crit}: {result.pass_rate_percent:.2f} % pass")
+    fig.colorbar(im, ax=ax, shrink=0.8)
+    name = "gamma_" + str(crit).replace("%", "pct").replace("/", "_").replace(" ", "_")
+    return Figure(f"{name}_k{k}", f"Gamma {crit}, slice {k}", _render(fig),
+                  {"k": k, "gamma": g, **result.summary()})
+
+
+def dvh_figure(curves: Mapping[str, Sequence[DVH]]) -> Figure:
+    """Cumulative DVHs, one colour per structure, one line style per dose source."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    top = max(float(h.dose_gy[0]) for hs in curves.values() for h in hs)
+    levels = np.linspace(0.0, 1.05 * top, 200)
+    data: dict[str, Any] = {"dose_gy": levels}
+    for colour, (structure, hs) in enumerate(curves.items()):
+        for style, h in zip(("-", "--", ":"), hs, strict=False):
+            v = h.curve(levels)
+            ax.plot(levels, v, style, color=f"C{colour % 10}", label=f"{structure} ({h.name})")
+            data[f"{structure}/{h.name}"] = {"volume_percent": v, **h.metrics()}
+    ax.set_xlabel("dose [Gy]")
+    ax.set_ylabel("volume [%]")
+    ax.legend(fontsize=7)
+    return Figure("dvh", "Cumulative dose–volume histograms", _render(fig), data)
+
+
+def profiles_figure(profiles: Sequence[Profile], *, name: str = "profile") -> Figure:
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(7, 4))
+    data: dict[str, Any] = {}
+    for p in profiles:
+        ax.plot(p.distance_mm, p.dose_gy, label=p.label)
+        data[p.label] = {"distance_mm": p.distance_mm, "dose_gy": p.dose_gy,
+                         "start_mm": p.points_mm[0], "end_mm": p.points_mm[-1]}
+    ax.set_xlabel("distance along the line [mm]")
+    ax.set_ylabel("dose [Gy]")
+    ax.legend()
+    return Figure(name, f"Dose profile {name}", _render(fig), data)
+
+
+def _jsonable(x: Any) -> Any:
+    if isinstance(x, dict):
+        return {str(k): _jsonable(v) for k, v in x.items()}
+    if isinstance(x, list | tuple):
+        return [_jsonable(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return _jsonable(x.tolist())
+    if isinstance(x, np.generic):
+        x = x.item()
+    if isinstance(x, float) and not np.isfinite(x):
+        return None
+    return x
+
+
+def write_report(out_dir: str | os.PathLike[str], figures: Sequence[Figure],
+                 summary: Mapping[str, Any], *, title: str = "tetdose dose comparison") -> Path:
+    """Write the report folder (module docstring) atomically; return its path."""
+    out = Path(out_dir)
+    rows = "".join(f"<tr><th>{html.escape(str(k))}</th><td>{html.escape(_fmt(v))}</td></tr>"
+                   for k, v in _flatten(summary).items())
+    blocks = "".join(
+        f"<figure><img alt='{html.escape(f.name)}' src='data:image/png;base64,"
+        f"{base64.b64encode(f.png).decode()}'/><figcaption>{html.escape(f.caption)}"
+        "</figcaption></figure>" for f in figures)
+    page = (f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{html.escape(title)}"
+            "</title><style>body{font-family:sans-serif;margin:2em}td,th{padding:2px 8px;"
+            "text-align:left}img{max-width:100%}</style></head><body>"
+            f"<h1>{html.escape(title)}</h1><table>{rows}</table>{blocks}</body></html>")
+    with atomic_write_dir(out) as tmp:
+        (tmp / "report.html").write_text(page, encoding="utf-8")
+        for f in figures:
+            (tmp / f"{f.name}.png").write_bytes(f.png)
+        (tmp / "figures.json").write_text(
+            json.dumps({f.name: _jsonable(f.data) for f in figures}), encoding="utf-8")
+        (tmp / "summary.json").write_text(json.dumps(_jsonable(dict(summary)), indent=2),
+                                          encoding="utf-8")
+    return out
+
+
+def _flatten(d: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for k, v in d.items():
+        if isinstance(v, Mapping):
+            out |= _flatten(v, f"{prefix}{k} / ")
+        else:
+            out[f"{prefix}{k}"] = v
+    return out
+
+
+def _fmt(v: Any) -> str:
+    return f"{v:.5g}" if isinstance(v, float) else str(v)

@@ -1,0 +1,243 @@
+"""njit geometry on a tetrahedral mesh: exit face along a ray, neighbour walk, entry, relocation.
+
+Exit face (plane-based, after Ren et al., "Accelerating mesh-based Monte Carlo method on modern
+CPU architectures", Biomed. Opt. Express 3:3223, 2012, §2.2): face f of tet k has outward unit
+normal n_f and offset c_f (n_f·x = c_f on the face). For a ray p + t·d inside the tet the exit
+distance is ``t* = min { (c_f − n_f·p) / (n_f·d) : n_f·d > 0, f ≠ entry face }``, clamped at 0.
+
+**Tie rule.** Equal distances (rays through an edge or a vertex) go to the lowest face index
+(strict ``<``). The photon then hops through the tets around the edge or vertex with zero-length
+steps; each hop leaves through a face the ray points out of, so the hops turn monotonically
+towards the tet that holds the ray. A ray tangent to a face may be attributed to either side of
+it: both share the face's densities, so only the tally cell of a zero-volume path can change.
+If a walk stalls (no face ahead, or more than ``MAX_ZERO_STEPS`` zero-length hops), the photon is
+**relocated** by point location of a point nudged along the ray; the caller counts relocations.
+
+Entry from outside: Möller–Trumbore ray–triangle tests against the boundary faces, accelerated
+by a uniform grid over the mesh's bounding box traversed with Amanatides–Woo (see
+:mod:`tetdose.transport._geometry_voxel`). The first boundary hit tells whether the source point
+is outside (hit an entering face: start there) or inside (hit a leaving face: walk back along
+the ray to the source point).
+"""
+
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit
+
+from tetdose._typing import FloatArray, IntArray
+from tetdose.transport._geometry_voxel import box_interval
+
+#: Zero-length hops allowed in a row before the photon is relocated.
+MAX_ZERO_STEPS = 64
+#: Relative tolerance on barycentric coordinates in point location and triangle hits.
+BARY_TOL = 1e-9
+
+
+class TetGeometry(NamedTuple):
+    """Flat arrays describing a tetrahedral mesh for the kernels (all mm, g/cm³).
+
+    One crossing reads ``planes[k]`` (128 B, two cache lines), ``link[k]`` and, with physics,
+    ``density[k]`` and ``material[k]``; points and tets serve only the mesh entry.
+    """
+
+    points_mm: FloatArray  # (N, 3)
+    tets: IntArray  # (M, 4)
+    planes: FloatArray  # (M, 4, 4) face f: outward unit normal (0:3) and offset n·x (3) [mm]
+    link: IntArray  # (M, 4) 4·(tet across face f) + (its local face index); −1 on the boundary
+    density: FloatArray  # (M, 4) linear density ρ(x) = g·x + c: (gx, gy, gz [g/cm³/mm], c)
+    material: IntArray  # (M,) material index
+    bnd_tet: IntArray  # (F,) owner tet of each boundary face
+    bnd_face: IntArray  # (F,) its local face index
+    grid_lo: FloatArray  # (3,) acceleration grid lower corner [mm]
+    grid_cell: FloatArray  # (3,) cell size [mm]
+    grid_n: IntArray  # (3,) cells per axis
+    cell_start: IntArray  # (C + 1,) CSR offsets into cell_items
+    cell_items: IntArray  # boundary face ids per grid cell
+
+
+# Bench (bench_transport.py, 40³-cube box, CPU time): inline="always" 3.8 → 4.9 M crossings/s
+# on the old 7-array layout; planes (M,4,4) + packed link: 9.8 → 12 M/s (z rays), 7.7 M/s for
+# isotropic rays. A branch-less select over all four faces (Yao et al. 2012 style) measured
+# 7.5 M/s and a structure-of-arrays variant 7.1 M/s: numba's scalar code prefers the branches.
+@njit(cache=True, inline="always")
+def density_at(g, k, x, y, z):
+    """Density [g/cm³] at (x, y, z) [mm] by the linear field of tet ``k``."""
+    return g.density[k, 3] + g.density[k, 0] * x + g.density[k, 1] * y + g.density[k, 2] * z
+
+
+@njit(cache=True, inline="always")
+def exit_face(g, k, x, y, z, u, v, w, entry_face):
+    """(face, distance [mm]) where the ray leaves tet ``k``; face −1 if no face lies ahead."""
+    best_t = np.inf
+    best_f = -1
+    for f in range(4):
+        if f == entry_face:
+            continue
+        den = g.planes[k, f, 0] * u + g.planes[k, f, 1] * v + g.planes[k, f, 2] * w
+        if den > 0.0:
+            t = (g.planes[k, f, 3] - (g.planes[k, f, 0] * x + g.planes[k, f, 1] * y
+                                      + g.planes[k, f, 2] * z)) / den
+            if t < best_t:
+                best_t = t
+                best_f = f
+    if best_t < 0.0:
+        best_t = 0.0
+    return best_f, best_t
+
+
+@njit(cache=True, inline="always")
+def next_tet(g, k, f):
+    """(tet, entry face) across face ``f`` of tet ``k``; tet −1 when it leaves the mesh."""
+    nxt = g.link[k, f]
+    return nxt >> 2, nxt & 3
+
+
+@njit(cache=True)
+def contains(g, k, x, y, z, tol_mm):
+    """True if (x, y, z) lies inside tet ``k`` up to ``tol_mm`` outside any face plane."""
+    for f in range(4):
+        s = (g.planes[k, f, 0] * x + g.planes[k, f, 1] * y + g.planes[k, f, 2] * z
+             - g.planes[k, f, 3])
+        if s > tol_mm:
+            return False
+    return True
+
+
+@njit(cache=True)
+def locate(g, x, y, z, tol_mm):
+    """Brute-force point location: the first tet containing (x, y, z), or −1 (rare fallback)."""
+    for k in range(g.tets.shape[0]):
+        if contains(g, k, x, y, z, tol_mm):
+            return k
+    return -1
+
+
+@njit(cache=True)
+def relocate(g, x, y, z, u, v, w, nudge_mm):
+    """Tet holding the point nudged by ``nudge_mm`` along the ray (−1: it left the mesh)."""
+    return locate(g, x + nudge_mm * u, y + nudge_mm * v, z + nudge_mm * w, nudge_mm)
+
+
+@njit(cache=True)
+def _ray_triangle(g, b, x, y, z, u, v, w):
+    """Möller–Trumbore distance to boundary face ``b`` (inf if missed) and n·d of the face."""
+    k = g.bnd_tet[b]
+    f = g.bnd_face[b]
+    # vertices of face f are the tet's vertices other than f
+    ia = g.tets[k, (f + 1) % 4]
+    ib = g.tets[k, (f + 2) % 4]
+    ic = g.tets[k, (f + 3) % 4]
+    ax, ay, az = g.points_mm[ia, 0], g.points_mm[ia, 1], g.points_mm[ia, 2]
+    e1x, e1y, e1z = g.points_mm[ib, 0] - ax, g.points_mm[ib, 1] - ay, g.points_mm[ib, 2] - az
+    e2x, e2y, e2z = g.points_mm[ic, 0] - ax, g.points_mm[ic, 1] - ay, g.points_mm[ic, 2] - az
+    px, py, pz = v * e2z - w * e2y, w * e2x - u * e2z, u * e2y - v * e2x
+    det = e1x * px + e1y * py + e1z * pz
+    cos_n = g.planes[k, f, 0] * u + g.planes[k, f, 1] * v + g.planes[k, f, 2] * w
+    if det == 0.0:
+        return np.inf, cos_n
+    inv = 1.0 / det
+    sx, sy, sz = x - ax, y - ay, z - az
+    b1 = (sx * px + sy * py + sz * pz) * inv
+    qx, qy, qz = sy * e1z - sz * e1y, sz * e1x - sx * e1z, sx * e1y - sy * e1x
+    b2 = (u * qx + v * qy + w * qz) * inv
+    if b1 < -BARY_TOL or b2 < -BARY_TOL or b1 + b2 > 1.0 + BARY_TOL:
+        return np.inf, cos_n
+    return (e2x * qx + e2y * qy + e2z * qz) * inv, cos_n
+
+
+@njit(cache=True)
+def first_boundary_hit(g, x, y, z, u, v, w):
+    """(boundary face id, distance [mm], n·d) of the first boundary face along the ray, t ≥ 0.
+
+    Walks the acceleration grid cell by cell (Amanatides–Woo) and stops as soon as the best hit
+    lies within the cells already visited. Returns face −1 if the ray misses the mesh.
+    """
+    t0, t1 = box_interval(g.grid_lo, g.grid_cell, g.grid_n, x, y, z, u, v, w)
+    best_b, best_t, best_cos = -1, np.inf, 0.0
+    if t0 > t1:
+        return best_b, best_t, best_cos
+    t = max(t0, 0.0)
+    idx = np.empty(3, np.intp)
+    step = np.empty(3, np.intp)
+    t_next = np.empty(3)
+    t_delta = np.empty(3)
+    d = (u, v, w)
+    p = (x, y, z)
+    for a in range(3):
+        q = (p[a] + t * d[a] - g.grid_lo[a]) / g.grid_cell[a]
+        idx[a] = min(max(int(np.floor(q)), 0), g.grid_n[a] - 1)
+        if d[a] > 0.0:
+            step[a] = 1
+            t_next[a] = (g.grid_lo[a] + (idx[a] + 1) * g.grid_cell[a] - p[a]) / d[a]
+            t_delta[a] = g.grid_cell[a] / d[a]
+        elif d[a] < 0.0:
+            step[a] = -1
+            t_next[a] = (g.grid_lo[a] + idx[a] * g.grid_cell[a] - p[a]) / d[a]
+            t_delta[a] = -g.grid_cell[a] / d[a]
+        else:
+            step[a] = 0
+            t_next[a] = np.inf
+            t_delta[a] = np.inf
+    while True:
+        c = (idx[2] * g.grid_n[1] + idx[1]) * g.grid_n[0] + idx[0]
+        for s in range(g.cell_start[c], g.cell_start[c + 1]):
+            b = g.cell_items[s]
+            tb, cb = _ray_triangle(g, b, x, y, z, u, v, w)
+            if tb >= -BARY_TOL * g.grid_cell[0] and tb < best_t:
+                best_b, best_t, best_cos = b, max(tb, 0.0), cb
+        a = 0
+        if t_next[1] < t_next[a]:
+            a = 1
+        if t_next[2] < t_next[a]:
+            a = 2
+        if best_t <= t_next[a] or t_next[a] > t1:
+            return best_b, best_t, best_cos
+        idx[a] += step[a]
+        if idx[a] < 0 or idx[a] >= g.grid_n[a]:
+            return best_b, best_t, best_cos
+        t_next[a] += t_delta[a]
+
+
+@njit(cache=True)
+def walk_to(g, k, x, y, z, u, v, w, length_mm):
+    """Tet holding p + length·d, walking from tet ``k`` at p (pure geometry; −1 if it leaves).
+
+    Also returns the number of relocations the walk needed.
+    """
+    entry = -1
+    remaining = length_mm
+    zero_steps = 0
+    relocations = 0
+    while True:
+        f, t = exit_face(g, k, x, y, z, u, v, w, entry)
+        if f >= 0 and t >= remaining:
+            return k, relocations
+        if f < 0 or zero_steps > MAX_ZERO_STEPS:
+            relocations += 1
+            return locate(g, x + remaining * u, y + remaining * v, z + remaining * w,
+                          1e-9 * (1.0 + remaining)), relocations
+        zero_steps = zero_steps + 1 if t == 0.0 else 0
+        x, y, z = x + t * u, y + t * v, z + t * w
+        remaining -= t
+        k, entry = next_tet(g, k, f)
+        if k < 0:
+            return -1, relocations
+
+
+@njit(cache=True)
+def enter_mesh(g, x, y, z, u, v, w):
+    """Start of a source ray: (tet, x, y, z, relocations); tet −1 if the ray misses the mesh.
+
+    Outside the mesh is vacuum: a ray from an outside point moves to its first boundary hit.
+    """
+    b, t, cos_n = first_boundary_hit(g, x, y, z, u, v, w)
+    if b < 0:
+        return -1, x, y, z, 0
+    k = g.bnd_tet[b]
+    hx, hy, hz = x + t * u, y + t * v, z + t * w
+    if cos_n <= 0.0:
+        return k, hx, hy, hz, 0
+    # the first boundary face is a leaving one: the source point is inside; walk back to it
+    kk, nreloc = walk_to(g, k, hx, hy, hz, -u, -v, -w, t)
+    return kk, x, y, z, nreloc

@@ -1,0 +1,230 @@
+"""njit photon histories on the tetrahedral mesh and on the voxel grid (same physics, same tallies).
+
+Free path with a linear density. Inside tet k the density along the ray p + s·d is
+``ρ(s) = ρ_p + a·s`` with ``a = ∇ρ_k · d``, so the optical depth to distance s [mm] is the quadratic
+
+    τ(s) = (μ/ρ)(E) · (ρ_p·s + a·s²/2) / MM_PER_CM.
+
+A sampled τ* = −ln(1 − ξ) is reached in this tet when ``C* = τ*·MM_PER_CM/(μ/ρ) < C(t_exit)``
+(C = column density in mm·g/cm³); the distance is then the root of ``a s²/2 + ρ_p s − C* = 0``
+taken in the cancellation-free form ``s = 2C* / (ρ_p + √(ρ_p² + 2aC*))`` — exact, no stepping.
+Otherwise τ* −= τ(t_exit) and the photon moves to the neighbour. On voxels the density is
+constant per voxel (a = 0) and the walk is Amanatides–Woo.
+
+Tallies (energy per cell [MeV]): *analog* adds the energy the interaction leaves locally
+(``interact``'s deposited energy: photo-electron, Compton electron, pair kinetic energy — i.e.
+energy transferred, dose = collision kerma when electrons stop locally); *track_length* adds
+``E·(μen/ρ)(E)·C/MM_PER_CM`` for every path segment of column density C (the kerma estimator,
+analytic for a linear density). Photons below the energy cut-off, and secondaries beyond the
+fixed stack, deposit locally in both modes. The energy ledger row is
+``[source, deposited (analog), escaped, cut off, lost]`` in MeV and closes to round-off.
+"""
+
+import math
+
+from numba import njit
+
+from tetdose._constants import MM_PER_CM
+from tetdose._random import next_uniform
+from tetdose.transport._geometry_tet import (
+    MAX_ZERO_STEPS,
+    density_at,
+    exit_face,
+    next_tet,
+    relocate,
+)
+from tetdose.transport._geometry_voxel import dda_init, voxel_index
+from tetdose.transport._physics import interact, transport_coefficients
+
+#: Ledger columns and counter columns.
+L_SOURCE, L_DEPOSITED, L_ESCAPED, L_CUTOFF, L_LOST = 0, 1, 2, 3, 4
+C_LOST, C_RELOCATIONS, C_STACK_FULL, C_CROSSINGS = 0, 1, 2, 3
+N_LEDGER, N_COUNTS = 5, 4
+#: Flight outcomes.
+INTERACTS, ESCAPES, LOST = 0, 1, 2
+#: Nudge along the ray before a relocation [mm], and relocations allowed per flight.
+RELOCATE_NUDGE_MM = 1e-6
+MAX_RELOCATIONS = 4
+
+
+@njit(cache=True)
+def flight_mesh(g, xs, e, k, entry, x, y, z, u, v, w, tau, track, tally, counts):
+    """Move a photon to its next interaction: (outcome, tet, x, y, z).
+
+    The remaining optical depth is carried as column density ``need = τ·MM_PER_CM/(μ/ρ)``
+    [mm·g/cm³] (converted only when the material changes). Tallies the track-length kerma along
+    the way when ``track`` is true; adds the tets crossed to ``counts[C_CROSSINGS]``.
+    """
+    m_prev = -1
+    mu = need = kerma = 0.0
+    zero_steps = 0
+    n_reloc = 0
+    crossings = 0
+    while True:
+        m = g.material[k]
+        if m != m_prev:
+            if m_prev >= 0:
+                tau = need * mu / MM_PER_CM
+            mu, mu_en = transport_coefficients(xs, m, e)
+            need = tau * MM_PER_CM / mu
+            kerma = e * mu_en / MM_PER_CM
+            m_prev = m
+        f, t = exit_face(g, k, x, y, z, u, v, w, entry)
+        if f < 0 or zero_steps > MAX_ZERO_STEPS:
+            counts[C_RELOCATIONS] += 1
+            n_reloc += 1
+            k = relocate(g, x, y, z, u, v, w, RELOCATE_NUDGE_MM)
+            if k < 0 or n_reloc > MAX_RELOCATIONS:
+                counts[C_CROSSINGS] += crossings
+                return LOST, k, x, y, z
+            nudge = RELOCATE_NUDGE_MM
+            x, y, z = x + nudge * u, y + nudge * v, z + nudge * w
+            entry = -1
+            zero_steps = 0
+            continue
+        rho0 = max(density_at(g, k, x, y, z), 0.0)
+        a = g.density[k, 0] * u + g.density[k, 1] * v + g.density[k, 2] * w
+        col_exit = rho0 * t + 0.5 * a * t * t
+        if need < col_exit:
+            den = rho0 + math.sqrt(max(rho0 * rho0 + 2.0 * a * need, 0.0))
+            s = 2.0 * need / den if den > 0.0 else 0.0
+            if track:
+                tally[k] += kerma * need
+            counts[C_CROSSINGS] += crossings
+            return INTERACTS, k, x + s * u, y + s * v, z + s * w
+        if track:
+            tally[k] += kerma * col_exit
+        need -= col_exit
+        zero_steps = zero_steps + 1 if t == 0.0 else 0
+        x, y, z = x + t * u, y + t * v, z + t * w
+        k, entry = next_tet(g, k, f)
+        crossings += 1
+        if k < 0:
+            counts[C_CROSSINGS] += crossings
+            return ESCAPES, k, x, y, z
+
+
+@njit(cache=True)
+def flight_voxel(g, xs, e, x, y, z, u, v, w, tau, track, tally):
+    """Voxel twin of :func:`flight_mesh` (grid frame, constant ρ): (outcome, voxel, x, y, z)."""
+    nx, ny, nz = g.n[0], g.n[1], g.n[2]
+    i, j, k = voxel_index(g, x, y, z)
+    sx, sy, sz, tx, ty, tz, dx, dy, dz = dda_init(g, i, j, k, x, y, z, u, v, w)
+    t_cur = 0.0
+    m_prev = -1
+    mu = mu_en = 0.0
+    while True:
+        vid = (k * ny + j) * nx + i
+        m = g.material[vid]
+        if m != m_prev:
+            mu, mu_en = transport_coefficients(xs, m, e)
+            m_prev = m
+        t_next = min(tx, ty, tz)
+        col = g.density[vid] * max(t_next - t_cur, 0.0)
+        need = tau * MM_PER_CM / mu
+        if need < col:
+            t_cur += need / g.density[vid]
+            if track:
+                tally[vid] += e * mu_en * need / MM_PER_CM
+            return INTERACTS, vid, x + t_cur * u, y + t_cur * v, z + t_cur * w
+        if track:
+            tally[vid] += e * mu_en * col / MM_PER_CM
+        tau -= mu * col / MM_PER_CM
+        t_cur = max(t_next, t_cur)
+        if tx == t_next:
+            i += sx
+            tx += dx
+        elif ty == t_next:
+            j += sy
+            ty += dy
+        else:
+            k += sz
+            tz += dz
+        if i < 0 or i >= nx or j < 0 or j >= ny or k < 0 or k >= nz:
+            return ESCAPES, -1, x + t_cur * u, y + t_cur * v, z + t_cur * w
+
+
+@njit(cache=True)
+def interaction(xs, m, cell, e, u, v, w, state, cutoff, track, tally, ledger, counts,
+                stack, n_stack, x, y, z):
+    """Sample the interaction at (x, y, z) in ``cell``; push a secondary; book the energy.
+
+    Returns (state, alive, e, u, v, w, n_stack) of the continuing photon.
+    """
+    state, _proc, dep, e_out, u2, v2, w2, e_sec, su, sv, sw = interact(xs, m, e, u, v, w, state)
+    ledger[L_DEPOSITED] += dep
+    if not track:
+        tally[cell] += dep
+    if e_sec > 0.0:
+        if e_sec >= cutoff and n_stack < stack.shape[0]:
+            stack[n_stack, 0] = e_sec
+            stack[n_stack, 1], stack[n_stack, 2], stack[n_stack, 3] = x, y, z
+            stack[n_stack, 4], stack[n_stack, 5], stack[n_stack, 6] = su, sv, sw
+            stack[n_stack, 7] = cell
+            n_stack += 1
+        else:
+            if e_sec >= cutoff:
+                counts[C_STACK_FULL] += 1
+            ledger[L_CUTOFF] += e_sec
+            tally[cell] += e_sec
+    if e_out < cutoff:
+        ledger[L_CUTOFF] += e_out
+        tally[cell] += e_out
+        return state, False, e_out, u2, v2, w2, n_stack
+    return state, True, e_out, u2, v2, w2, n_stack
+
+
+@njit(cache=True)
+def history_mesh(g, xs, e, k, x, y, z, u, v, w, state, cutoff, track, tally,
+                 ledger, counts, stack):
+    """Follow one source photon (already in tet ``k``) and its secondaries to the end."""
+    n_stack = 0
+    entry = -1
+    while True:
+        state, xi = next_uniform(state)
+        out, k2, x, y, z = flight_mesh(g, xs, e, k, entry, x, y, z, u, v, w,
+                                       -math.log(1.0 - xi), track, tally, counts)
+        alive = False
+        if out == ESCAPES:
+            ledger[L_ESCAPED] += e
+        elif out == LOST:
+            ledger[L_LOST] += e
+            counts[C_LOST] += 1
+        else:
+            k = k2
+            entry = -1
+            state, alive, e, u, v, w, n_stack = interaction(
+                xs, g.material[k], k, e, u, v, w, state, cutoff, track, tally, ledger, counts,
+                stack, n_stack, x, y, z)
+        if not alive:
+            if n_stack == 0:
+                return state
+            n_stack -= 1
+            e, x, y, z, u, v, w = stack[n_stack, 0], stack[n_stack, 1], stack[n_stack, 2], \
+                stack[n_stack, 3], stack[n_stack, 4], stack[n_stack, 5], stack[n_stack, 6]
+            k = int(stack[n_stack, 7])
+            entry = -1
+
+
+@njit(cache=True)
+def history_voxel(g, xs, e, x, y, z, u, v, w, state, cutoff, track, tally,
+                  ledger, counts, stack):
+    """Follow one source photon (inside the grid, grid frame) and its secondaries to the end."""
+    n_stack = 0
+    while True:
+        state, xi = next_uniform(state)
+        out, vid, x, y, z = flight_voxel(g, xs, e, x, y, z, u, v, w,
+                                         -math.log(1.0 - xi), track, tally)
+        alive = False
+        if out == ESCAPES:
+            ledger[L_ESCAPED] += e
+        else:
+            state, alive, e, u, v, w, n_stack = interaction(
+                xs, g.material[vid], vid, e, u, v, w, state, cutoff, track, tally, ledger,
+                counts, stack, n_stack, x, y, z)
+        if not alive:
+            if n_stack == 0:
+                return state
+            n_stack -= 1
+            e, x, y, z, u, v, w = stack[n_stack, 0], stack[n_stack, 1], stack[n_stack, 2], \
+                stack[n_stack, 3], stack[n_stack, 4], stack[n_stack, 5], stack[n_stack, 6]

@@ -1,0 +1,239 @@
+"""Transport inputs: photon sources (beams), the plan (beams + region materials + normalization),
+and run settings. Frozen dataclasses validated on construction (errors are :class:`PlanError`).
+
+``plan.toml`` (parsed with :mod:`tomllib`)::
+
+    [[beam]]
+    type = "point"              # "pencil" | "parallel" | "point"
+    energy_mev = 1.0            # or spectrum = "spectrum.csv" (columns energy_mev, weight)
+    position_mm = [0.0, 0.0, 0.0]
+    direction = [0.0, 0.0, 1.0] # pencil / parallel axis, cone axis
+    field_mm = [100.0, 100.0]   # parallel: field size (x along e1, y along e2)
+    half_angle_deg = 180.0      # point: 180 = isotropic
+    weight = 1.0                # relative weight between beams
+    [materials]
+    1 = "water"                 # region label → material name
+    [normalization]
+    particles = 1.0             # dose reported for this many source particles
+
+Field axes: ``e1`` is the unit vector of ``field_x_direction`` (default: the patient axis least
+aligned with the beam) made orthogonal to the beam axis; ``e2 = axis × e1``.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+import tomllib
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from tetdose._typing import FloatArray
+from tetdose.errors import PlanError
+
+SOURCE_KINDS = ("pencil", "parallel", "point")
+ESTIMATORS = ("analog", "track_length")
+#: Largest tally (n_batches × n_cells × 8 bytes) accepted by default.
+MAX_TALLY_BYTES = 2 * 1024**3
+_BEAM_KEYS = {"type", "energy_mev", "spectrum", "position_mm", "direction", "field_mm",
+              "half_angle_deg", "weight", "field_x_direction"}
+
+
+def _unit(vec: Sequence[float], what: str) -> FloatArray:
+    arr = np.asarray(vec, dtype=np.float64).reshape(-1)
+    if arr.shape != (3,) or not np.all(np.isfinite(arr)):
+        raise PlanError(f"{what} must be three finite numbers, got {vec!r}")
+    norm = float(np.linalg.norm(arr))
+    if norm == 0.0:
+        raise PlanError(f"{what} must not be the zero vector")
+    return arr / norm
+
+
+@dataclass(frozen=True, eq=False)
+class PhotonSource:
+    """One beam: where photons start [mm], where they go, their energies [MeV] and weight.
+
+    ``energies_mev``/``line_weights`` are discrete spectrum lines (one line: mono-energetic).
+    """
+
+    kind: str
+    position_mm: Sequence[float]
+    direction: Sequence[float] = (0.0, 0.0, 1.0)
+    energies_mev: Sequence[float] = (1.0,)
+    line_weights: Sequence[float] = (1.0,)
+    field_mm: Sequence[float] = (0.0, 0.0)
+    half_angle_deg: float = 180.0
+    weight: float = 1.0
+    field_x_direction: Sequence[float] | None = None
+    e1: FloatArray = field(init=False, repr=False)
+    e2: FloatArray = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        if self.kind not in SOURCE_KINDS:
+            raise PlanError(f"beam type {self.kind!r} is unknown; use one of {SOURCE_KINDS}")
+        pos = np.asarray(self.position_mm, dtype=np.float64).reshape(-1)
+        if pos.shape != (3,) or not np.all(np.isfinite(pos)):
+            raise PlanError(f"beam position_mm must be three finite numbers, got {pos}")
+        axis = _unit(self.direction, "beam direction")
+        e = np.asarray(self.energies_mev, dtype=np.float64).reshape(-1)
+        wl = np.asarray(self.line_weights, dtype=np.float64).reshape(-1)
+        if len(e) == 0 or len(e) != len(wl):
+            raise PlanError("a beam needs at least one energy and one weight per energy")
+        if not np.all(np.isfinite(e)) or np.any(e <= 0.0):
+            raise PlanError(f"beam energies must be positive MeV, got {e.tolist()}")
+        if not np.all(np.isfinite(wl)) or np.any(wl < 0.0) or wl.sum() <= 0.0:
+            raise PlanError("spectrum weights must be non-negative with a positive sum")
+        fld = np.asarray(self.field_mm, dtype=np.float64).reshape(-1)
+        if fld.shape != (2,) or np.any(fld < 0.0) or not np.all(np.isfinite(fld)):
+            raise PlanError(f"field_mm must be two non-negative sizes, got {self.field_mm}")
+        if self.kind == "parallel" and np.any(fld <= 0.0):
+            raise PlanError("a parallel beam needs a positive field_mm = [x, y]")
+        if not 0.0 < float(self.half_angle_deg) <= 180.0:
+            raise PlanError(f"half_angle_deg must lie in (0, 180], got {self.half_angle_deg}")
+        if not (math.isfinite(self.weight) and self.weight > 0.0):
+            raise PlanError(f"beam weight must be positive, got {self.weight}")
+        ref = (np.eye(3)[int(np.argmin(np.abs(axis)))] if self.field_x_direction is None
+               else _unit(self.field_x_direction, "field_x_direction"))
+        e1 = ref - np.dot(ref, axis) * axis
+        if np.linalg.norm(e1) < 1e-9:
+            raise PlanError("field_x_direction must not be parallel to the beam direction")
+        for name, val in (("position_mm", pos), ("direction", axis), ("energies_mev", e),
+                          ("line_weights", wl), ("field_mm", fld)):
+            object.__setattr__(self, name, val)
+        object.__setattr__(self, "e1", e1 / np.linalg.norm(e1))
+        object.__setattr__(self, "e2", np.cross(axis, self.e1))
+
+    @property
+    def mean_energy_mev(self) -> float:
+        w = np.asarray(self.line_weights)
+        return float(np.dot(w, self.energies_mev) / w.sum())
+
+
+@dataclass(frozen=True, eq=False)
+class Plan:
+    """Beams, region → material map and dose normalization (source particles)."""
+
+    beams: tuple[PhotonSource, ...]
+    materials: Mapping[int, str] = field(default_factory=dict)
+    particles: float = 1.0
+
+    def __post_init__(self) -> None:
+        beams = tuple(self.beams)
+        if not beams or not all(isinstance(b, PhotonSource) for b in beams):
+            raise PlanError("a plan needs at least one beam ([[beam]] table in plan.toml)")
+        if not (math.isfinite(self.particles) and self.particles > 0):
+            raise PlanError(f"normalization particles must be positive, got {self.particles}")
+        mats: dict[int, str] = {}
+        for key, name in dict(self.materials).items():
+            try:
+                mats[int(key)] = str(name)
+            except (TypeError, ValueError):
+                raise PlanError(f"[materials] keys must be integer region labels, got {key!r}"
+                                ) from None
+        object.__setattr__(self, "beams", beams)
+        object.__setattr__(self, "materials", mats)
+
+    @classmethod
+    def from_toml(cls, path: str | os.PathLike[str]) -> Plan:
+        """Read ``plan.toml`` (see module doc); spectrum paths are relative to the plan file."""
+        path = Path(path)
+        try:
+            data = tomllib.loads(path.read_text())
+        except OSError as exc:
+            raise PlanError(f"cannot read plan {path}: {exc.strerror}") from exc
+        except tomllib.TOMLDecodeError as exc:
+            raise PlanError(f"{path} is not valid TOML: {exc}") from exc
+        return cls.from_dict(data, base_dir=path.parent)
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any], base_dir: Path = Path(".")) -> Plan:
+        unknown = set(data) - {"beam", "materials", "normalization"}
+        if unknown:
+            raise PlanError(f"unknown plan section(s) {sorted(unknown)}; "
+                            "use [[beam]], [materials], [normalization]")
+        beams = data.get("beam", [])
+        if not isinstance(beams, list):
+            raise PlanError("beams must be given as [[beam]] tables")
+        norm = data.get("normalization", {})
+        return cls(tuple(_beam_from_dict(b, i, base_dir) for i, b in enumerate(beams)),
+                   data.get("materials", {}), float(norm.get("particles", 1.0)))
+
+
+def _beam_from_dict(d: Mapping[str, Any], i: int, base_dir: Path) -> PhotonSource:
+    where = f"beam {i + 1}"
+    unknown = set(d) - _BEAM_KEYS
+    if unknown:
+        raise PlanError(f"{where}: unknown key(s) {sorted(unknown)}; allowed: {sorted(_BEAM_KEYS)}")
+    if ("energy_mev" in d) == ("spectrum" in d):
+        raise PlanError(f"{where}: give exactly one of energy_mev or spectrum")
+    if "type" not in d or "position_mm" not in d:
+        raise PlanError(f"{where}: type and position_mm are required")
+    if "spectrum" in d:
+        energies, weights = read_spectrum(base_dir / d["spectrum"])
+    else:
+        energies, weights = np.array([float(d["energy_mev"])]), np.ones(1)
+    try:
+        return PhotonSource(
+            kind=d["type"], position_mm=d["position_mm"], direction=d.get("direction", (0, 0, 1)),
+            energies_mev=energies, line_weights=weights, field_mm=d.get("field_mm", (0.0, 0.0)),
+            half_angle_deg=float(d.get("half_angle_deg", 180.0)),
+            weight=float(d.get("weight", 1.0)), field_x_direction=d.get("field_x_direction"))
+    except PlanError as exc:
+        raise PlanError(f"{where}: {exc}") from None
+
+
+def read_spectrum(path: Path) -> tuple[FloatArray, FloatArray]:
+    """Spectrum lines from a CSV with header ``energy_mev,weight``."""
+    try:
+        with open(path, newline="") as f:
+            rows = list(csv.DictReader(f))
+    except OSError as exc:
+        raise PlanError(f"cannot read spectrum {path}: {exc.strerror}") from exc
+    try:
+        e = np.array([float(r["energy_mev"]) for r in rows])
+        w = np.array([float(r["weight"]) for r in rows])
+    except (KeyError, TypeError, ValueError):
+        raise PlanError(f"{path}: expected numeric columns energy_mev, weight") from None
+    if len(e) == 0:
+        raise PlanError(f"spectrum {path} has no rows")
+    return e, w
+
+
+@dataclass(frozen=True)
+class TransportSettings:
+    """Run settings: histories, batches (for the uncertainty), seed, cut-off [MeV], estimator."""
+
+    n_histories: int
+    n_batches: int = 10
+    seed: int = 1
+    energy_cutoff_mev: float = 0.01
+    estimator: str = "track_length"
+    stream: int = 0
+    max_tally_bytes: int = MAX_TALLY_BYTES
+
+    def __post_init__(self) -> None:
+        if int(self.n_batches) < 2:
+            raise PlanError("n_batches must be at least 2 (batch statistics give the uncertainty)")
+        if int(self.n_histories) < int(self.n_batches):
+            raise PlanError(f"n_histories ({self.n_histories}) must be at least n_batches "
+                            f"({self.n_batches})")
+        if int(self.seed) < 0 or int(self.stream) < 0:
+            raise PlanError("seed and stream must be non-negative integers")
+        if not 0.0 < self.energy_cutoff_mev < 20.0:
+            raise PlanError(f"energy_cutoff_mev must lie in (0, 20) MeV, got "
+                            f"{self.energy_cutoff_mev}")
+        if self.estimator not in ESTIMATORS:
+            raise PlanError(f"estimator {self.estimator!r} is unknown; use one of {ESTIMATORS}")
+        for name in ("n_histories", "n_batches", "seed", "stream"):
+            object.__setattr__(self, name, int(getattr(self, name)))
+
+    def check_tally_size(self, n_cells: int) -> None:
+        need = self.n_batches * n_cells * 8
+        if need > self.max_tally_bytes:
+            raise PlanError(f"the tally needs {need / 2**20:.0f} MiB ({self.n_batches} batches × "
+                            f"{n_cells} cells); use fewer batches or raise max_tally_bytes")

@@ -1,0 +1,229 @@
+"""Geometry kernels of the transport: tet walker, mesh entry, voxel traversal, vs brute force.
+
+Path lengths per cell are read through the track-length tally of a flight that never interacts
+(τ = ∞): it adds E·(μen/ρ)·∫ρ ds per cell, so with E = 1 and dividing by μen/ρ it returns the
+column density ∫ρ ds [mm·g/cm³] through each cell, which the references compute independently
+(half-space clipping of the ray against every cell, pure Python/numpy).
+"""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+
+from tetdose._constants import MM_PER_CM
+from tetdose.image import Image, ImageGrid
+from tetdose.mesh import TetMesh
+from tetdose.transport import mesh_geometry, morton_order
+from tetdose.transport._geometry_tet import enter_mesh, exit_face
+from tetdose.transport._geometry_voxel import VoxelGeometry, enter_grid
+from tetdose.transport._history import C_CROSSINGS, ESCAPES, N_COUNTS, flight_mesh, flight_voxel
+from tetdose.transport._physics import transport_coefficients
+from tetdose.transport.xs import build_cross_sections
+
+
+def box_mesh(n, size_mm, origin_mm=(0.0, 0.0, 0.0), jitter=0.0, seed=0):
+    """Structured box: n cubes per axis, each split into 6 tets (Kuhn); interior points jittered."""
+    axes = [np.linspace(origin_mm[a], origin_mm[a] + size_mm[a], n[a] + 1) for a in range(3)]
+    pts = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+    vid = lambda i, j, k: (i * (n[1] + 1) + j) * (n[2] + 1) + k  # noqa: E731
+    tets = []
+    for i, j, k in itertools.product(*(range(m) for m in n)):
+        for perm in itertools.permutations(range(3)):
+            c = [i, j, k]
+            path = [vid(*c)]
+            for a in perm:
+                c[a] += 1
+                path.append(vid(*c))
+            tets.append(path)
+    if jitter:
+        h = np.array(size_mm) / np.array(n)
+        interior = np.all([(pts[:, a] > axes[a][0]) & (pts[:, a] < axes[a][-1])
+                           for a in range(3)], axis=0)
+        pts[interior] += np.random.default_rng(seed).uniform(-jitter, jitter, (interior.sum(), 3)) * h
+    return TetMesh(pts, np.array(tets)).with_fixed_orientation()
+
+
+@pytest.fixture(scope="module")
+def xs():
+    return build_cross_sections(["water"])
+
+
+def _column_per_cell_mesh(g, xs, k, p, d, n_cells):
+    tally = np.zeros(n_cells)
+    counts = np.zeros(N_COUNTS, dtype=np.int64)
+    out, *_ = flight_mesh(g, xs, 1.0, k, -1, *p, *d, 1e300, True, tally, counts)
+    mu_en = transport_coefficients(xs, 0, 1.0)[1]
+    return out, tally * MM_PER_CM / mu_en, counts
+
+
+def _reference_chords(mesh, rho, p, d):
+    """{tet: (t_in, t_out, ∫ρ ds)} for tets the ray p + t·d (t ≥ 0) crosses with length > 0."""
+    out = {}
+    for k, tet in enumerate(mesh.tets):
+        v = mesh.points_mm[tet]
+        t_in, t_out = 0.0, np.inf
+        for f in range(4):
+            a, b, c = v[[i for i in range(4) if i != f]]
+            nrm = np.cross(b - a, c - a)
+            if np.dot(nrm, v[f] - a) > 0:
+                nrm = -nrm
+            den, dist = np.dot(nrm, d), np.dot(nrm, a - p)
+            if den > 0:
+                t_out = min(t_out, dist / den)
+            elif den < 0:
+                t_in = max(t_in, dist / den)
+            elif dist < 0:
+                t_in = np.inf
+        if t_out - t_in > 1e-9:
+            mid = p + 0.5 * (t_in + t_out) * d
+            bary = np.linalg.solve(np.vstack([v.T, np.ones(4)]), np.append(mid, 1.0))
+            out[k] = (t_in, t_out, (t_out - t_in) * float(bary @ rho[tet]))
+    return out
+
+
+def test_walker_matches_brute_force_on_random_rays(xs):
+    mesh = box_mesh((3, 3, 3), (30.0, 30.0, 30.0), jitter=0.25)
+    rng = np.random.default_rng(1)
+    rho = rng.uniform(0.5, 1.5, mesh.n_points)
+    g = mesh_geometry(mesh, rho, np.zeros(mesh.n_tets, dtype=np.intp))
+    for _ in range(40):
+        k = int(rng.integers(mesh.n_tets))
+        p = mesh.points_mm[mesh.tets[k]].T @ rng.dirichlet(np.ones(4))
+        d = rng.normal(size=3)
+        d /= np.linalg.norm(d)
+        out, col, counts = _column_per_cell_mesh(g, xs, k, p, d, mesh.n_tets)
+        ref = _reference_chords(mesh, rho, p, d)
+        expected = np.zeros(mesh.n_tets)
+        for kk, (_, _, c) in ref.items():
+            expected[kk] = c
+        assert out == ESCAPES and counts[1] == 0
+        assert counts[C_CROSSINGS] == len(ref)  # one crossing per tet left
+        np.testing.assert_allclose(col, expected, atol=1e-9)
+
+
+def test_tet_order_does_not_change_the_walk(xs):
+    """Kernel tet i = mesh tet order[i]: a renumbered geometry walks the same chords."""
+    mesh = box_mesh((3, 3, 3), (30.0, 30.0, 30.0), jitter=0.25, seed=5)
+    rng = np.random.default_rng(6)
+    rho = rng.uniform(0.5, 1.5, mesh.n_points)
+    material = np.zeros(mesh.n_tets, dtype=np.intp)
+    orders = {"identity": np.arange(mesh.n_tets), "random": rng.permutation(mesh.n_tets),
+              "morton": morton_order(mesh.centroids_mm)}
+    assert sorted(orders["morton"]) == list(range(mesh.n_tets))
+    d = np.array([1.0, 0.4, 0.3]) / np.sqrt(1.25)
+    cols = {}
+    for name, order in orders.items():
+        g = mesh_geometry(mesh, rho, material, order)
+        k, x, y, z, _ = enter_mesh(g, -5.0, 3.0, 4.0, *d)
+        out, col, _ = _column_per_cell_mesh(g, xs, k, (x, y, z), d, mesh.n_tets)
+        assert out == ESCAPES
+        cols[name] = np.empty_like(col)
+        cols[name][order] = col
+    assert np.count_nonzero(cols["identity"]) > 5
+    np.testing.assert_allclose(cols["random"], cols["identity"], rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(cols["morton"], cols["identity"], rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize("p, d", [
+    ((10.0, 10.0, -5.0), (0.0, 0.0, 1.0)),        # along mesh edges, through vertices
+    ((0.0, 0.0, -5.0), (0.0, 0.0, 1.0)),          # along the boundary edge of the box
+    ((-5.0, -5.0, -5.0), (1.0, 1.0, 1.0)),        # along the cube diagonals (Kuhn edges)
+    ((-5.0, 10.0, 10.0), (1.0, 0.0, 0.0)),        # along edges in x
+    ((-5.0, 15.0, 10.0), (1.0, 0.0, 0.0)),        # in a face plane
+])
+def test_adversarial_rays_cross_the_whole_box(xs, p, d):
+    """Rays along edges, through vertices and in face planes of a voxel-like mesh: no loss."""
+    mesh = box_mesh((3, 3, 3), (30.0, 30.0, 30.0))
+    g = mesh_geometry(mesh, np.ones(mesh.n_points), np.zeros(mesh.n_tets, dtype=np.intp))
+    d = np.array(d) / np.linalg.norm(d)
+    k, x, y, z, n_reloc = enter_mesh(g, *p, *d)
+    assert k >= 0 and n_reloc == 0
+    out, col, counts = _column_per_cell_mesh(g, xs, k, (x, y, z), d, mesh.n_tets)
+    chord = 30.0 * (np.sqrt(3.0) if d[0] * d[1] * d[2] else 1.0)
+    assert out == ESCAPES and counts[:C_CROSSINGS].sum() == 0
+    assert col.sum() == pytest.approx(chord, rel=1e-12)
+
+
+def test_entry_from_outside_and_inside_matches_brute_force():
+    mesh = box_mesh((3, 3, 3), (30.0, 30.0, 30.0), jitter=0.2, seed=3)
+    rho = np.ones(mesh.n_points)
+    g = mesh_geometry(mesh, rho, np.zeros(mesh.n_tets, dtype=np.intp))
+    rng = np.random.default_rng(2)
+    for _ in range(30):
+        p = rng.uniform(-40.0, 70.0, 3)
+        d = rng.uniform(5.0, 25.0, 3) - p
+        d /= np.linalg.norm(d)
+        ref = _reference_chords(mesh, rho, p, d)
+        k, x, y, z, _ = enter_mesh(g, *p, *d)
+        first = min(ref, key=lambda kk: ref[kk][0])
+        assert k == first
+        np.testing.assert_allclose((x, y, z), p + ref[first][0] * d, atol=1e-9)
+    for _ in range(10):  # points inside: the kernel walks back from the boundary
+        p = rng.uniform(1.0, 29.0, 3)
+        d = rng.normal(size=3)
+        d /= np.linalg.norm(d)
+        k, *_ = enter_mesh(g, *p, *d)
+        ref = _reference_chords(mesh, rho, p, d)
+        assert ref[k][0] == pytest.approx(0.0, abs=1e-9)
+
+
+def test_ray_missing_the_mesh_reports_minus_one():
+    mesh = box_mesh((2, 2, 2), (10.0, 10.0, 10.0))
+    g = mesh_geometry(mesh, np.ones(mesh.n_points), np.zeros(mesh.n_tets, dtype=np.intp))
+    assert enter_mesh(g, 20.0, 20.0, -5.0, 0.0, 0.0, 1.0)[0] == -1
+    assert enter_mesh(g, 5.0, 5.0, -5.0, 0.0, 0.0, -1.0)[0] == -1
+
+
+def test_exit_face_tie_goes_to_lowest_face_index():
+    mesh = TetMesh(np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]]),
+                   np.array([[0, 1, 2, 3]]))
+    g = mesh_geometry(mesh, np.ones(4), np.zeros(1, dtype=np.intp))
+    d = np.array([1.0, 1.0, 1.0]) / np.sqrt(3)
+    # from the origin vertex along the diagonal: only face 0 (x+y+z=1) lies ahead
+    f, t = exit_face(g, 0, 0.0, 0.0, 0.0, *d, -1)
+    assert f == 0 and t == pytest.approx(1 / np.sqrt(3))
+    # through the edge x-axis: faces 2 (y = 0) and 3 (z = 0) tie; the lower index wins
+    f, t = exit_face(g, 0, 0.1, 0.1, 0.1, 0.0, -1 / np.sqrt(2), -1 / np.sqrt(2), -1)
+    assert f == 2 and t == pytest.approx(0.1 * np.sqrt(2))
+
+
+def _reference_voxel_columns(lo, cell, n, rho, p, d):
+    out = np.zeros(n[0] * n[1] * n[2])
+    for i, j, k in itertools.product(range(n[0]), range(n[1]), range(n[2])):
+        a = lo + np.array([i, j, k]) * cell
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t1, t2 = (a - p) / d, (a + cell - p) / d
+        t_in = np.nanmax(np.minimum(t1, t2))
+        t_out = np.nanmin(np.maximum(t1, t2))
+        vid = (k * n[1] + j) * n[0] + i
+        out[vid] = max(t_out - max(t_in, 0.0), 0.0) * rho[vid]
+    return out
+
+
+def test_voxel_traversal_matches_brute_force(xs):
+    grid = ImageGrid((0, 0, 0), (2.0, 3.0, 2.5), np.eye(3), (4, 3, 5))
+    rng = np.random.default_rng(4)
+    rho = rng.uniform(0.2, 2.0, grid.n_voxels)
+    img = Image(rho.reshape(grid.shape), grid)
+    lo, cell = -0.5 * grid.spacing_mm, grid.spacing_mm
+    n = np.array(grid.size, dtype=np.intp)
+    g = VoxelGeometry(lo, cell, n, img.array.reshape(-1).copy(), np.zeros(grid.n_voxels, np.intp))
+    mu_en = transport_coefficients(xs, 0, 1.0)[1]
+    for trial in range(30):
+        p = rng.uniform(-10.0, 20.0, 3)
+        d = rng.uniform(0.0, 8.0, 3) - p
+        if trial < 4:  # axis-parallel rays (zero direction components)
+            p, d = np.array([-3.0, 2.5 + 0.7 * trial, 0.75]), np.array([1.0, 0.0, 0.0])
+        d /= np.linalg.norm(d)
+        inside, x, y, z = enter_grid(g, *p, *d)
+        ref = _reference_voxel_columns(lo, cell, n, rho, p, d)
+        if not inside:
+            assert ref.sum() == pytest.approx(0.0, abs=1e-9)
+            continue
+        tally = np.zeros(grid.n_voxels)
+        out, *_ = flight_voxel(g, xs, 1.0, x, y, z, *d, 1e300, True, tally)
+        assert out == ESCAPES
+        np.testing.assert_allclose(tally * MM_PER_CM / mu_en, ref, atol=1e-9)

@@ -1,0 +1,63 @@
+"""`tetdose demo --quick` end to end: the report's numbers are sane and every DICOM file valid."""
+
+import json
+import shutil
+import subprocess
+
+import pytest
+
+from tetdose import study
+from tetdose.cli import main
+
+
+@pytest.fixture(scope="module")
+def demo(tmp_path_factory):
+    out = tmp_path_factory.mktemp("demo") / "demo-out"
+    assert main(["demo", "--quick", "-q", "-o", str(out)]) == 0
+    return out, json.loads((out / "summary.json").read_text())
+
+
+def test_report_numbers_are_sane(demo):
+    out, s = demo
+    ours = s["mapping"]["l2 exact (tetdose)"]
+    assert ours["mass_error_in_mesh_pct"] < 1e-7  # mass-conserving mapping
+    assert all(abs(p["mass_change_rel"]) < 1e-9 for p in s["motion"])  # over the whole cycle
+    assert s["dose"]["ledger_closure_rel"] < 1e-9 and s["dose"]["lost_photons"] == 0
+    matched = s["gamma"]["static phase, matched resolution: voxel vs mesh 3%/3mm global"]
+    assert matched["pass_rate_percent"] > 85.0
+    tumour = s["dvh"]["tumour"]
+    assert tumour["mesh"]["Dmean"] > 0 and tumour["voxel EMT"]["Dmean"] > 0
+    # The three accumulations agree on the tumour's mean dose within a few per cent.
+    assert tumour["voxel EMT"]["Dmean"] / tumour["mesh"]["Dmean"] == pytest.approx(1.0, abs=0.15)
+    html = (out / "report.html").read_text()
+    assert html.count("<img") >= 8 and "data:image/png;base64," in html
+
+
+def test_outputs_exist_and_dicom_is_valid(demo):
+    out, s = demo
+    series = sorted((out / "ct4d" / "dicom").iterdir())
+    assert len(series) == s["config"]["n_phases"]
+    assert len(list((out / "ct4d" / "nrrd").glob("*.nrrd"))) == s["config"]["n_phases"]
+    assert (out / "phases" / "phases.pvd").exists()
+    assert (out / "dose4d" / "accumulated.vtu").exists() and (out / "rtdose.dcm").exists()
+    if shutil.which("dciodvfy") is None:
+        pytest.skip("dciodvfy (dicom3tools) not installed")
+    files = [next(iter(sorted(d.iterdir()))) for d in series] + [out / "rtdose.dcm"]
+    for f in files:
+        res = subprocess.run(["dciodvfy", str(f)], capture_output=True, text=True)
+        errors = [ln for ln in (res.stdout + res.stderr).splitlines() if ln.startswith("Error")]
+        assert not errors, f"{f}: {errors}"
+
+
+def test_interrupted_run_leaves_previous_output_untouched(tmp_path, monkeypatch):
+    out = tmp_path / "demo-out"
+    out.mkdir()
+    (out / "keep.txt").write_text("previous run")
+
+    def interrupt(self):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(study._Run, "mapping", interrupt)
+    assert main(["demo", "--quick", "-q", "-o", str(out)]) == 130
+    assert [p.name for p in tmp_path.iterdir()] == ["demo-out"]  # no temp folder left behind
+    assert (out / "keep.txt").read_text() == "previous run"
