@@ -41,15 +41,20 @@ def voxelize(mesh: TetMesh, density_g_cm3: FloatArray, grid: ImageGrid, *,
         raise ValueError(f"density must have one value per point ({mesh.n_points}), "
                          f"got shape {density.shape}")
     ov = overlap if overlap is not None else compute_overlap(mesh, grid, progress=progress)
+    # Work on the voxels the mesh touches only: memory ∝ pairs plus the one output array.
+    touched, pair_to_touched = np.unique(ov.voxel, return_inverse=True)
+    pair_mass = np.einsum("pa,pa->p", density[mesh.tets[ov.tet]], ov.bary_mm3) / 1000.0
+    mass_g = np.bincount(pair_to_touched, weights=pair_mass, minlength=len(touched))
+    covered = np.bincount(pair_to_touched, weights=ov.volume_mm3, minlength=len(touched))
     bg = _background(background, grid)
-    mass_g = ov.voxel_mass_g(mesh.tets, density)
-    covered = ov.covered_volume_per_voxel_mm3()
+    rho = np.array(bg, dtype=np.float64) if np.ndim(bg) else np.full(grid.n_voxels, float(bg))
+    bg_touched = rho[touched]
     v = grid.voxel_volume_mm3
     if partial == "mass":
-        rho = (mass_g * 1000.0 + bg * np.clip(v - covered, 0.0, None)) / v
+        rho[touched] = (mass_g * 1000.0 + bg_touched * np.clip(v - covered, 0.0, None)) / v
     else:
-        touched = covered > MIN_COVER_FRACTION * v
-        rho = np.where(touched, mass_g * 1000.0 / np.where(touched, covered, 1.0), bg)
+        hit = covered > MIN_COVER_FRACTION * v
+        rho[touched[hit]] = mass_g[hit] * 1000.0 / covered[hit]
     return Image(rho.reshape(grid.shape), grid)
 
 

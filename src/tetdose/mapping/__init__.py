@@ -14,7 +14,7 @@ from scipy.ndimage import maximum_filter, minimum_filter
 
 from tetdose._typing import FloatArray
 from tetdose.calibration import HUCalibration
-from tetdose.image import Image
+from tetdose.image import Image, ImageGrid
 from tetdose.mapping.overlap import Overlap, compute_overlap, warn_if_uncovered
 from tetdose.mapping.solve import project_l2, solve_lsq
 from tetdose.mesh import TetMesh
@@ -79,6 +79,8 @@ def map_density(mesh: TetMesh, ct_hu: Image, *, calibration: HUCalibration | Non
     mesh.check_cells()
     if by_region:
         mesh = mesh.split_by_region()
+    full_grid = ct_hu.grid
+    ct_hu, crop_start = _crop_to_mesh(ct_hu, mesh)  # memory ∝ the mesh box, not the whole CT
     ov = compute_overlap(mesh, ct_hu.grid, method=overlap, n_samples=n_samples, seed=seed,
                          progress=progress)
     outside = warn_if_uncovered(mesh, ov)
@@ -104,7 +106,34 @@ def map_density(mesh: TetMesh, ct_hu: Image, *, calibration: HUCalibration | Non
     out = mesh.with_data(point_data={"density": density},
                          cell_data={"mass_g": tet_masses_g(mesh, density),
                                     "ct_mass_g": ct_mass_tet})
-    return DensityMap(out, ov, solver, float(ct_mass_tet.sum()), outside)
+    return DensityMap(out, _on_full_grid(ov, full_grid, crop_start), solver,
+                      float(ct_mass_tet.sum()), outside)
+
+
+def _crop_to_mesh(ct: Image, mesh: TetMesh) -> tuple[Image, np.ndarray]:
+    """The CT cropped to the voxels the mesh's bounding box can touch (+1 voxel), and the crop's
+    first voxel index (i, j, k). A mesh wholly outside leaves the CT whole (the overlap says so)."""
+    idx = ct.grid.physical_to_index(mesh.points_mm)
+    size = np.array(ct.grid.size)
+    lo = np.clip(np.floor(idx.min(axis=0)).astype(np.int64) - 1, 0, size - 1)
+    hi = np.clip(np.ceil(idx.max(axis=0)).astype(np.int64) + 1, 0, size - 1)
+    if np.any(idx.max(axis=0) < -0.5) or np.any(idx.min(axis=0) > size - 0.5):
+        return ct, np.zeros(3, dtype=np.int64)
+    arr = ct.array[lo[2]:hi[2] + 1, lo[1]:hi[1] + 1, lo[0]:hi[0] + 1]
+    grid = ImageGrid(ct.grid.index_to_physical(lo.astype(np.float64)), ct.grid.spacing_mm,
+                     ct.grid.direction, tuple(int(n) for n in hi - lo + 1))
+    return Image(arr, grid), lo
+
+
+def _on_full_grid(ov: Overlap, grid: ImageGrid, corner: np.ndarray) -> Overlap:
+    """Re-express an overlap computed on a crop starting at voxel ``corner`` on the full grid."""
+    if ov.grid.size == grid.size:
+        return ov
+    nx, ny, _ = ov.grid.size
+    i, j, k = ov.voxel % nx, (ov.voxel // nx) % ny, ov.voxel // (nx * ny)
+    fx, fy, _ = grid.size
+    voxel = ((k + corner[2]) * fy + (j + corner[1])) * fx + (i + corner[0])
+    return Overlap(grid, ov.tet_ptr, voxel, ov.bary_mm3, ov.method)
 
 
 def _vertex_bounds(mesh: TetMesh, ov: Overlap, pair_rho: FloatArray, rho_ct: Image

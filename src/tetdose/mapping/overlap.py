@@ -73,12 +73,6 @@ class Overlap:
         """Volume of each voxel covered by the mesh [mm³], flat voxel order."""
         return np.bincount(self.voxel, weights=self.volume_mm3, minlength=self.grid.n_voxels)
 
-    def voxel_mass_g(self, tets: IntArray, density_g_cm3: FloatArray) -> FloatArray:
-        """Mesh mass in each voxel [g] for vertex densities (linear in each tet; eq. 14–15)."""
-        corner = density_g_cm3[tets[self.tet]]  # (P, 4)
-        mass = np.einsum("pa,pa->p", corner, self.bary_mm3) / 1000.0
-        return np.bincount(self.voxel, weights=mass, minlength=self.grid.n_voxels)
-
 
 def compute_overlap(mesh: TetMesh, grid: ImageGrid, *, method: str = "exact",
                     n_samples: int = 1000, seed: int = 0, progress: bool = False,

@@ -23,6 +23,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
+from threadpoolctl import threadpool_limits
 
 from tetdose._typing import FloatArray, IntArray
 from tetdose.mesh import TetMesh
@@ -64,7 +65,10 @@ def solve_lsq(mesh: TetMesh, tet_density_g_cm3: FloatArray) -> FloatArray:
     a = vertex_average_matrix(mesh.tets, mesh.n_points)
     d = np.asarray(tet_density_g_cm3, dtype=np.float64)
     x0 = np.full(mesh.n_points, d.mean())
-    sol = spla.lsmr(a, d - a @ x0, atol=LSMR_TOL, btol=LSMR_TOL, maxiter=20 * mesh.n_points)
+    # LSMR's vector operations are short BLAS calls: threaded BLAS only oversubscribes the cores
+    # (measured 5.0 s vs 0.24 s on a 4 096-point mesh on a busy 2-core machine).
+    with threadpool_limits(limits=1, user_api="blas"):
+        sol = spla.lsmr(a, d - a @ x0, atol=LSMR_TOL, btol=LSMR_TOL, maxiter=20 * mesh.n_points)
     return x0 + sol[0]
 
 
