@@ -8,6 +8,7 @@ import pytest
 from tetdose.accumulate import (
     accumulate_mesh_dose,
     accumulate_meshes,
+    check_phase_totals,
     direct_dose_mapping,
     energy_mass_transfer,
     moved_points,
@@ -37,13 +38,15 @@ def test_mass_spread_is_reported_and_a_missing_update_refused(phase0):
     m = tet_mass_g(phase0)
     ok = np.stack([m, m * (1 + 1e-13)])
     assert phase_mass_spread(ok) < 1e-12
+    check_phase_totals(ok)
     small = ok.copy()
-    small[1, 7] *= 1.01  # a P1 projection error: reported, accepted
+    small[1, 7] *= 1.01  # a P1 projection error in one tet: reported, accepted
     assert phase_mass_spread(small) == pytest.approx(0.01 / 1.005, rel=1e-9)
+    check_phase_totals(small)
     bad = ok.copy()
-    bad[1, 7] *= 1.2  # densities never updated after a 20 % volume change
-    with pytest.raises(ValueError, match="tet 7 has mass"):
-        phase_mass_spread(bad)
+    bad[1] *= 0.9  # densities never updated after a 10 % volume change
+    with pytest.raises(ValueError, match="phase 1 holds"):
+        check_phase_totals(bad)
     with pytest.raises(TopologyMismatchError):
         accumulate_mesh_dose(np.ones((2, 3)), np.ones((2, 4)))
 
@@ -72,7 +75,7 @@ def test_accumulate_meshes_checks_topology_and_density(phase0):
     with pytest.raises(TopologyMismatchError):
         accumulate_meshes([phase0, other], [dose, dose])
     squeezed = phase0.moved(phase0.points_mm * np.array([1.0, 1.0, 0.9]))  # volume −10 %
-    with pytest.raises(ValueError, match="mass"):
+    with pytest.raises(ValueError, match="same in every phase"):
         accumulate_meshes([phase0, squeezed], [dose, dose])
 
 
