@@ -37,7 +37,8 @@ def add_args(parser: argparse.ArgumentParser) -> None:
                         help="dose VTU (cell_data dose) or a folder holding accumulated.vtu")
     parser.add_argument("--voxel-dose", required=True, type=Path,
                         help="dose image (.nrrd …) or a folder holding accumulated.nrrd")
-    parser.add_argument("--structures", type=Path, help="label image (0 = background)")
+    parser.add_argument("--structures", type=Path,
+                        help="label image (0 = background) or a DICOM RTSTRUCT file")
     parser.add_argument("--reference", choices=("voxel", "mesh"), default="voxel",
                         help="which dose is the gamma reference (default voxel)")
     parser.add_argument("--threshold", type=float, default=10.0,
@@ -85,9 +86,9 @@ def _run_compare(args: argparse.Namespace) -> int:
                              "dose image"))
     voxel = voxel.with_array(np.asarray(voxel.array, dtype=np.float64))
     mesh_img = mesh_dose_to_grid(mesh, dose, voxel.grid)
-    labels = _labels_on(read_image(args.structures), voxel.grid) if args.structures else None
+    masks = _structure_masks(args.structures, voxel.grid) if args.structures else {}
     ref, ev = (voxel, mesh_img) if args.reference == "voxel" else (mesh_img, voxel)
-    figures, summary = _comparison(mesh, dose, mesh_img, voxel, ref, ev, labels, args)
+    figures, summary = _comparison(mesh, dose, mesh_img, voxel, ref, ev, masks, args)
     write_report(args.output, figures, summary)
     for name, g in summary["gamma"].items():
         print(f"gamma {name}: {g['pass_rate_percent']:.2f} % pass")
@@ -95,7 +96,7 @@ def _run_compare(args: argparse.Namespace) -> int:
     return 0
 
 
-def _comparison(mesh, dose, mesh_img, voxel, ref, ev, labels, args):  # noqa: ANN001, ANN202
+def _comparison(mesh, dose, mesh_img, voxel, ref, ev, masks, args):  # noqa: ANN001, ANN202
     from tetdose.compare import report
     from tetdose.compare.dvh import dvh, image_dvh
     from tetdose.compare.gamma import gamma_index
@@ -114,14 +115,13 @@ def _comparison(mesh, dose, mesh_img, voxel, ref, ev, labels, args):  # noqa: AN
                               threshold_percent=args.threshold, mask=slice_mask)
         figures.append(report.gamma_figure(g_slice, k=int(kmax[0])))
     covered = mesh_img.array > 0
-    structures = {"mesh": (None, covered)}
-    if labels is not None:
-        for lab in np.unique(labels[labels > 0]):
-            structures[f"label {lab}"] = (int(lab), labels == lab)
-    tet_label = _tet_labels(mesh, labels, voxel.grid)
+    structures = {"mesh": (np.ones(mesh.n_tets, bool), covered)}
+    tet_voxel = _tet_voxels(mesh, voxel.grid)
+    for name, mask in masks.items():
+        sel = (tet_voxel >= 0) & mask.ravel()[np.maximum(tet_voxel, 0)]
+        structures[name if name != "mesh" else "structure mesh"] = (sel, mask)
     curves, dvh_summary = {}, {}
-    for name, (lab, mask) in structures.items():
-        sel = np.ones(mesh.n_tets, bool) if lab is None else tet_label == lab
+    for name, (sel, mask) in structures.items():
         if not sel.any() or not mask.any():
             continue
         hm = dvh(dose[sel], mesh.volumes_mm3[sel] / 1000.0, name="mesh")  # by volume [cm³]
@@ -156,14 +156,24 @@ def _labels_on(labels, grid) -> np.ndarray:  # noqa: ANN001
     return np.where(ok, out, 0).reshape(grid.shape)
 
 
-def _tet_labels(mesh, labels, grid) -> np.ndarray:  # noqa: ANN001
-    """Structure label of each tet: the label of the voxel holding its centroid."""
-    if labels is None:
-        return np.zeros(mesh.n_tets, np.int64)
+def _structure_masks(path: Path, grid) -> dict[str, np.ndarray]:  # noqa: ANN001
+    """Name → voxel mask on ``grid``: RTSTRUCT ROIs by name, or ``label N`` per image label."""
+    from tetdose.compare.rtstruct import is_rtstruct, read_rtstruct, structure_masks
+    from tetdose.io import read_image
+
+    if is_rtstruct(path):
+        return structure_masks(read_rtstruct(path), grid, skip_unusable=True)
+    labels = _labels_on(read_image(path), grid)
+    return {f"label {lab}": labels == lab for lab in np.unique(labels[labels > 0])}
+
+
+def _tet_voxels(mesh, grid) -> np.ndarray:  # noqa: ANN001
+    """Flat id of the voxel holding each tet's centroid (−1 off the grid): a tet belongs to a
+    structure when that voxel does."""
     idx = np.rint(grid.physical_to_index(mesh.centroids_mm)).astype(np.int64)
     ok = np.all((idx >= 0) & (idx < np.array(grid.size)), axis=1)
-    idx[~ok] = 0
-    return np.where(ok, labels[idx[:, 2], idx[:, 1], idx[:, 0]], 0)
+    flat = (idx[:, 2] * grid.size[1] + idx[:, 1]) * grid.size[0] + idx[:, 0]
+    return np.where(ok, flat, -1)
 
 
 def _run_export(args: argparse.Namespace) -> int:
