@@ -5,227 +5,247 @@ where voxel (i, j, k) is the unit box [i−½, i+½] × [j−½, j+½] × [k−�
 map from patient mm to u scales every volume by the same factor, so volume fractions and
 barycentric moments are unchanged by it.
 
-Method: a tetrahedron is cut by the voxel planes axis by axis (x slabs, then y, then z). Cutting a
-tetrahedron by a plane and keeping one side gives a polyhedron that splits into at most three
-tetrahedra (1 vertex kept: a corner tetrahedron; 2 kept: a wedge; 3 kept: a frustum — each a
-prism with planar quads, cut along its diagonals). A slab piece is the tetrahedron clipped by the
-slab's two planes: ≤ 9 tetrahedra after the x slab, ≤ 81 after the y slab; z pieces are not stored
-but reduced to per-voxel volumes and first moments as differences of the moments below
-consecutive z planes (one clip per plane). Volumes are sums of exact sub-tetrahedron volumes, so
-the rows of F sum to 1 up to round-off.
+Method (Powell & Abel, "An exact general remeshing scheme applied to physically conservative
+voxelization", J. Comput. Phys. 297, 2015 — the r3d scheme, own implementation): a convex
+polyhedron is stored as a vertex graph in which every vertex has exactly three neighbours in a
+fixed cyclic order, so faces are implicit (arriving at v from u, the face continues to the
+neighbour after u in v's list). Clipping by an axis-aligned plane keeps the vertices on one side,
+inserts one vertex on each cut edge, links the new vertices around the cut face by walking the
+faces, and compacts. The tetrahedron is swept progressively: the part above each x plane carries
+on (x slab = copy, clip below, and the remainder clipped above), then the same in y within each
+x slab; within a column only the part above each z plane is kept, and a voxel cell's volume and
+first moments are the differences of that remainder's moments before and after its upper cut
+(one clip and one moment sum per cell). Moments are sums over signed tetrahedra (a fan from one
+vertex of each face, apex c at the vertex mean for accuracy): V = Σ det[a−c, b−c, d−c] / 6,
+∫x dV = V c + Σ det · (a + b + d − 3c) / 24. No pieces proliferate, so the work per tetrahedron
+is proportional to the voxels it touches, and the rows of F sum to 1 up to round-off.
+
+A polyhedron holds at most ``_CAP`` vertices (a tetrahedron clipped by six planes has ≤ 16; on-
+plane vertices can add zero-length edges). Should a clip overflow, that tetrahedron is redone by
+the older tetrahedra-splitting method (:mod:`._tetsplit_kernels`): cutting a tetrahedron leaves ≤ 3
+tetrahedra (1 vertex kept: corner; 2: wedge; 3: frustum), ≤ 9 after an x slab and ≤ 81 after a
+y slab, z slabs from differences of the moments below consecutive z planes.
 
 Two entry kernels share the per-tet output layout (one slice per tetrahedron of length given by
-its bounding-box voxel count, ``out_count`` says how much of it is filled):
-``overlap_exact`` (this clipping) and ``overlap_monte_carlo`` (the paper's hit-and-miss estimate,
-uniform points in the tetrahedron after Rocchini & Cignoni, "Generating random points in a
-tetrahedron", J. Graphics Tools 5(4), 2000).
+its bounding-box voxel count, ``out_count`` says how much of it is filled): ``overlap_exact``
+(this clipping) and, in :mod:`._montecarlo_kernels`, ``overlap_monte_carlo`` (the paper's
+hit-and-miss estimate).
 """
 
-import math
 
 import numpy as np
 from numba import njit, prange
 
-from tetdose._random import next_uniform, seed_for
+from tetdose.mapping._tetsplit_kernels import (
+    _DROP_REL,
+    _MAX_X,
+    _MAX_Y,
+    _index_range,
+    _tet_volume,
+    _tets_exact_one,
+)
 
-#: Pieces whose volume is below this fraction of the tetrahedron's are dropped (touching contacts).
-_DROP_REL = 1e-13
-_MAX_X = 9
-_MAX_Y = 81
+#: Vertex capacity of a polyhedron (a tetrahedron clipped by six planes has at most 16).
+_CAP = 64
+
+
+_TET_NBR = ((1, 2, 3), (0, 3, 2), (0, 1, 3), (0, 2, 1))
+#: Slot after slot i in a vertex's cyclic neighbour list; face walks find i without branches
+#: (i = [nbr[1] == prev] + 2 [nbr[2] == prev]): 7 % faster than if/else on the liver bench.
+_NEXT = np.array([1, 2, 0], dtype=np.intp)
 
 
 @njit(cache=True)
-def _tet_volume(t):
-    """|det[b − a, c − a, d − a]| / 6 of a (4, 3) array."""
-    ax, ay, az = t[1, 0] - t[0, 0], t[1, 1] - t[0, 1], t[1, 2] - t[0, 2]
-    bx, by, bz = t[2, 0] - t[0, 0], t[2, 1] - t[0, 1], t[2, 2] - t[0, 2]
-    cx, cy, cz = t[3, 0] - t[0, 0], t[3, 1] - t[0, 1], t[3, 2] - t[0, 2]
+def _poly_init(tet, pos, nbr):
+    """pos, nbr ← tetrahedron (4, 3), reordered to positive orientation; returns 4."""
+    ax, ay, az = tet[1, 0] - tet[0, 0], tet[1, 1] - tet[0, 1], tet[1, 2] - tet[0, 2]
+    bx, by, bz = tet[2, 0] - tet[0, 0], tet[2, 1] - tet[0, 1], tet[2, 2] - tet[0, 2]
+    cx, cy, cz = tet[3, 0] - tet[0, 0], tet[3, 1] - tet[0, 1], tet[3, 2] - tet[0, 2]
     det = ax * (by * cz - bz * cy) - ay * (bx * cz - bz * cx) + az * (bx * cy - by * cx)
-    return abs(det) / 6.0
-
-
-@njit(cache=True, inline="always")
-def _put(out, n, p0, p1, p2, p3):
-    for a in range(3):
-        out[n, 0, a] = p0[a]
-        out[n, 1, a] = p1[a]
-        out[n, 2, a] = p2[a]
-        out[n, 3, a] = p3[a]
-
-
-@njit(cache=True)
-def _clip(t, axis, c, sign, out, n, cut):
-    """Append to ``out`` (from row ``n``) the tetrahedra of {x ∈ t : sign·(x[axis] − c) ≤ 0}.
-
-    Returns the new row count. Vertices on the plane count as kept-side boundary points.
-    ``cut`` is a (4, 3) scratch array for the edge–plane intersections (no allocation here: this
-    is the innermost call; allocating three small arrays per call made it ~30× slower).
-    """
-    s0 = sign * (t[0, axis] - c)
-    s1 = sign * (t[1, axis] - c)
-    s2 = sign * (t[2, axis] - c)
-    s3 = sign * (t[3, axis] - c)
-    nn = (s0 < 0.0) + (s1 < 0.0) + (s2 < 0.0) + (s3 < 0.0)
-    if nn == 0:
-        return n
-    if nn == 4:
-        out[n] = t
-        return n + 1
-    # Kept (negative) vertices first, in a fixed order; then the others.
-    neg0 = neg1 = neg2 = pos0 = pos1 = pos2 = 0
-    i_neg = 0
-    i_pos = 0
     for v in range(4):
-        sv = s0 if v == 0 else s1 if v == 1 else s2 if v == 2 else s3
-        if sv < 0.0:
-            if i_neg == 0:
-                neg0 = v
-            elif i_neg == 1:
-                neg1 = v
-            else:
-                neg2 = v
-            i_neg += 1
-        else:
-            if i_pos == 0:
-                pos0 = v
-            elif i_pos == 1:
-                pos1 = v
-            else:
-                pos2 = v
-            i_pos += 1
-    if nn == 1:
-        _cut(t, neg0, pos0, s0, s1, s2, s3, cut, 0)
-        _cut(t, neg0, pos1, s0, s1, s2, s3, cut, 1)
-        _cut(t, neg0, pos2, s0, s1, s2, s3, cut, 2)
-        _put(out, n, t[neg0], cut[0], cut[1], cut[2])
-        return n + 1
-    if nn == 2:  # wedge: triangles (a, ac, ad) and (b, bc, bd)
-        _cut(t, neg0, pos0, s0, s1, s2, s3, cut, 0)
-        _cut(t, neg0, pos1, s0, s1, s2, s3, cut, 1)
-        _cut(t, neg1, pos0, s0, s1, s2, s3, cut, 2)
-        _cut(t, neg1, pos1, s0, s1, s2, s3, cut, 3)
-        b = t[neg1]
-        _put(out, n, t[neg0], cut[0], cut[1], b)
-        _put(out, n + 1, cut[0], cut[1], b, cut[2])
-        _put(out, n + 2, cut[1], b, cut[2], cut[3])
-        return n + 3
-    # nn == 3, frustum: triangles (a, b, c) and (ad, bd, cd)
-    _cut(t, neg0, pos0, s0, s1, s2, s3, cut, 0)
-    _cut(t, neg1, pos0, s0, s1, s2, s3, cut, 1)
-    _cut(t, neg2, pos0, s0, s1, s2, s3, cut, 2)
-    a, b, cc = t[neg0], t[neg1], t[neg2]
-    _put(out, n, a, b, cc, cut[0])
-    _put(out, n + 1, b, cc, cut[0], cut[1])
-    _put(out, n + 2, cc, cut[0], cut[1], cut[2])
-    return n + 3
-
-
-@njit(cache=True, inline="always")
-def _cut(t, a, b, s0, s1, s2, s3, cut, row):
-    """cut[row] = the point where edge (a, b) of t crosses the plane (s = signed distances)."""
-    sa = s0 if a == 0 else s1 if a == 1 else s2 if a == 2 else s3
-    sb = s0 if b == 0 else s1 if b == 1 else s2 if b == 2 else s3
-    f = sa / (sa - sb)
-    for d in range(3):
-        cut[row, d] = t[a, d] + f * (t[b, d] - t[a, d])
+        src = v if det > 0.0 or v < 2 else 5 - v  # negative: swap vertices 2 and 3
+        for d in range(3):
+            pos[v, d] = tet[src, d]
+            nbr[v, d] = _TET_NBR[v][d]
+    return 4
 
 
 @njit(cache=True)
-def _slab(src, n_src, axis, lo, hi, out, tmp, cut):
-    """Clip ``src[:n_src]`` to lo ≤ x[axis] ≤ hi into ``out``; return the count."""
-    n = 0
-    for p in range(n_src):
-        m = _clip(src[p], axis, hi, 1.0, tmp, 0, cut)
-        for q in range(m):
-            n = _clip(tmp[q], axis, lo, -1.0, out, n, cut)
+def _poly_copy(pos, nbr, n, pos_to, nbr_to):
+    for v in range(n):
+        for d in range(3):
+            pos_to[v, d] = pos[v, d]
+            nbr_to[v, d] = nbr[v, d]
     return n
 
 
 @njit(cache=True)
-def _index_range(lo, hi, n):
-    """Voxels [first, last] along an axis that a piece spanning [lo, hi] (index space) can touch."""
-    first = max(0, int(math.floor(lo + 0.5)))
-    last = min(n - 1, int(math.floor(hi + 0.5)))
-    return first, last
+def _poly_clip(pos, nbr, n, axis, c, sign, sd, remap):
+    """Keep {x : sign·(x[axis] − c) ≤ 0} of the polyhedron in place; returns its vertex count.
 
-
-@njit(cache=True)
-def _below(t, c, tmp, cut, out4):
-    """out4 = (volume, ∫x, ∫y, ∫z) of the part of tetrahedron t with z ≤ c."""
-    m = _clip(t, 2, c, 1.0, tmp, 0, cut)
-    out4[:] = 0.0
-    for q in range(m):
-        _add_moments(tmp[q], out4)
-
-
-@njit(cache=True, inline="always")
-def _add_moments(t, out4):
-    v = _tet_volume(t)
-    out4[0] += v
-    for d in range(3):
-        out4[1 + d] += v * 0.25 * (t[0, d] + t[1, d] + t[2, d] + t[3, d])
-
-
-@njit(cache=True)
-def _column(ys, n_y, nz, z0, tmp, cut, zacc, cum, prev):
-    """Add each piece's volume and moments per z slab to zacc (rows relative to slab z0).
-
-    Slab values are differences of the cumulative moments below consecutive planes z = iz + ½
-    (one clip per plane instead of two per slab); parts below/above the grid are left out.
+    Vertices on the plane are kept; an edge from a kept vertex v to a removed one w gets a new
+    vertex u (nbr[u] = (v, ·, ·), u replacing w in v's list). Walking from u into v's face until
+    the next new vertex m closes that face with the edge m → u: nbr[u][2] = m, nbr[m][1] = u.
     """
-    for p in range(n_y):
-        zlo = ys[p, :, 2].min()
-        zhi = ys[p, :, 2].max()
-        pz0, pz1 = _index_range(zlo, zhi, nz)
-        if pz0 > pz1:
+    n_in = 0
+    n_out = 0
+    for v in range(n):
+        s = sign * (pos[v, axis] - c)
+        sd[v] = s
+        n_in += s < 0.0
+        n_out += s > 0.0
+    if n_out == 0:
+        return n
+    if n_in == 0:
+        return 0
+    m = n
+    for v in range(n):
+        if sd[v] > 0.0:
             continue
-        if zlo < pz0 - 0.5:
-            _below(ys[p], pz0 - 0.5, tmp, cut, prev)
-        else:
-            prev[:] = 0.0
-        for iz in range(pz0, pz1 + 1):
-            if zhi > iz + 0.5:
-                _below(ys[p], iz + 0.5, tmp, cut, cum)
-            else:
-                cum[:] = 0.0
-                _add_moments(ys[p], cum)
-            for e in range(4):
-                zacc[iz - z0, e] += cum[e] - prev[e]
-                prev[e] = cum[e]
+        for j in range(3):
+            w = nbr[v, j]
+            if sd[w] > 0.0:
+                if m == pos.shape[0]:
+                    return -1
+                f = sd[v] / (sd[v] - sd[w])
+                for d in range(3):
+                    pos[m, d] = pos[v, d] + f * (pos[w, d] - pos[v, d])
+                pos[m, axis] = c
+                nbr[m, 0] = v
+                nbr[v, j] = m
+                m += 1
+    for u in range(n, m):
+        prev = u
+        cur = nbr[u, 0]
+        while cur < n:
+            i = _NEXT[(nbr[cur, 1] == prev) + 2 * (nbr[cur, 2] == prev)]
+            prev = cur
+            cur = nbr[cur, i]
+        nbr[u, 2] = cur
+        nbr[cur, 1] = u
+    k = 0
+    for v in range(m):
+        if v < n and sd[v] > 0.0:
+            continue
+        remap[v] = k
+        for d in range(3):
+            pos[k, d] = pos[v, d]
+            nbr[k, d] = nbr[v, d]
+        k += 1
+    for v in range(k):
+        for d in range(3):
+            nbr[v, d] = remap[nbr[v, d]]
+    return k
 
 
 @njit(cache=True)
-def _exact_one(tet, nx, ny, nz, voxel_out, vol_out, cen_out, start, xs, ys, tmp, zacc, cut,
-               cum, prev):
-    """Pairs of one tetrahedron (index-space (4, 3) array); returns the number written."""
-    vol_tet = _tet_volume(tet)
-    drop = _DROP_REL * vol_tet
-    x0, x1 = _index_range(tet[:, 0].min(), tet[:, 0].max(), nx)
+def _poly_moments(pos, nbr, n, marks, out4):
+    """out4 = (V, ∫x, ∫y, ∫z) of the polyhedron by walking its faces (see the module doc)."""
+    out4[:] = 0.0
+    if n <= 0:
+        return
+    c0 = c1 = c2 = 0.0
+    for v in range(n):
+        c0 += pos[v, 0]
+        c1 += pos[v, 1]
+        c2 += pos[v, 2]
+        marks[v, 0] = marks[v, 1] = marks[v, 2] = False
+    c0, c1, c2 = c0 / n, c1 / n, c2 / n
+    vol = m0 = m1 = m2 = 0.0
+    for v in range(n):
+        ax, ay, az = pos[v, 0] - c0, pos[v, 1] - c1, pos[v, 2] - c2
+        for j in range(3):
+            if marks[v, j]:
+                continue
+            marks[v, j] = True
+            prev = v
+            cur = nbr[v, j]
+            bx, by, bz = pos[cur, 0] - c0, pos[cur, 1] - c1, pos[cur, 2] - c2
+            while True:
+                i = _NEXT[(nbr[cur, 1] == prev) + 2 * (nbr[cur, 2] == prev)]
+                marks[cur, i] = True
+                nxt = nbr[cur, i]
+                if nxt == v:
+                    break
+                dx, dy, dz = pos[nxt, 0] - c0, pos[nxt, 1] - c1, pos[nxt, 2] - c2
+                det = ax * (by * dz - bz * dy) - ay * (bx * dz - bz * dx) + az * (bx * dy - by * dx)
+                vol += det
+                m0 += det * (ax + bx + dx)
+                m1 += det * (ay + by + dy)
+                m2 += det * (az + bz + dz)
+                bx, by, bz = dx, dy, dz
+                prev = cur
+                cur = nxt
+    out4[0] = vol / 6.0
+    out4[1] = out4[0] * c0 + m0 / 24.0
+    out4[2] = out4[0] * c1 + m1 / 24.0
+    out4[3] = out4[0] * c2 + m2 / 24.0
+
+
+@njit(cache=True)
+def _poly_range(pos, n, axis, size):
+    """Voxels [first, last] along ``axis`` that the polyhedron can touch (empty if n ≤ 0)."""
+    if n <= 0:
+        return 0, -1
+    lo = hi = pos[0, axis]
+    for v in range(1, n):
+        lo = min(lo, pos[v, axis])
+        hi = max(hi, pos[v, axis])
+    return _index_range(lo, hi, size)
+
+
+@njit(cache=True)
+def _poly_exact_one(tet, nx, ny, nz, voxel_out, vol_out, cen_out, start, pos, nbr, sd, remap,
+                    marks, cum, prev):
+    """Pairs of one tetrahedron by progressive polyhedron clipping; −1 on capacity overflow.
+
+    pos[s], nbr[s] hold slot s: 0 = the tetrahedron's part above the current x plane, 1 = the
+    x slab's part above the current y plane, 2 = the column's part above the current z plane;
+    a cell's moments are the difference of slot 2's moments before and after its upper clip.
+    """
+    drop = _DROP_REL * _tet_volume(tet)
+    p0, p1, p2 = pos[0], pos[1], pos[2]
+    e0, e1, e2 = nbr[0], nbr[1], nbr[2]
+    n0 = _poly_init(tet, p0, e0)
+    x0, x1 = _poly_range(p0, n0, 0, nx)
+    n0 = _poly_clip(p0, e0, n0, 0, x0 - 0.5, -1.0, sd, remap)
     written = 0
     for ix in range(x0, x1 + 1):
-        n_x = _slab(tet.reshape(1, 4, 3), 1, 0, ix - 0.5, ix + 0.5, xs, tmp, cut)
-        if n_x == 0:
-            continue
-        y0, y1 = _index_range(xs[:n_x, :, 1].min(), xs[:n_x, :, 1].max(), ny)
+        n1 = _poly_copy(p0, e0, n0, p1, e1)
+        n1 = _poly_clip(p1, e1, n1, 0, ix + 0.5, 1.0, sd, remap)
+        n0 = _poly_clip(p0, e0, n0, 0, ix + 0.5, -1.0, sd, remap)
+        if n0 < 0 or n1 < 0:
+            return -1
+        y0, y1 = _poly_range(p1, n1, 1, ny)
+        n1 = _poly_clip(p1, e1, n1, 1, y0 - 0.5, -1.0, sd, remap)
         for iy in range(y0, y1 + 1):
-            n_y = _slab(xs, n_x, 1, iy - 0.5, iy + 0.5, ys, tmp, cut)
-            if n_y == 0:
-                continue
-            z0, z1 = _index_range(ys[:n_y, :, 2].min(), ys[:n_y, :, 2].max(), nz)
-            zacc[: z1 - z0 + 1] = 0.0
-            _column(ys, n_y, nz, z0, tmp, cut, zacc, cum, prev)
-            for r in range(z1 - z0 + 1):
-                if zacc[r, 0] > drop:
+            n2 = _poly_copy(p1, e1, n1, p2, e2)
+            n2 = _poly_clip(p2, e2, n2, 1, iy + 0.5, 1.0, sd, remap)
+            n1 = _poly_clip(p1, e1, n1, 1, iy + 0.5, -1.0, sd, remap)
+            if n1 < 0 or n2 < 0:
+                return -1
+            z0, z1 = _poly_range(p2, n2, 2, nz)
+            n2 = _poly_clip(p2, e2, n2, 2, z0 - 0.5, -1.0, sd, remap)
+            _poly_moments(p2, e2, n2, marks, prev)
+            for iz in range(z0, z1 + 1):
+                n2 = _poly_clip(p2, e2, n2, 2, iz + 0.5, -1.0, sd, remap)
+                if n2 < 0:
+                    return -1
+                _poly_moments(p2, e2, n2, marks, cum)
+                vol = prev[0] - cum[0]
+                if vol > drop:
                     w = start + written
-                    voxel_out[w] = ((z0 + r) * ny + iy) * nx + ix
-                    vol_out[w] = zacc[r, 0]
+                    voxel_out[w] = (iz * ny + iy) * nx + ix
+                    vol_out[w] = vol
                     for d in range(3):
-                        cen_out[w, d] = zacc[r, 1 + d] / zacc[r, 0]
+                        cen_out[w, d] = (prev[1 + d] - cum[1 + d]) / vol
                     written += 1
+                prev[:] = cum
     return written
 
 
-@njit(cache=True, parallel=True)
+# --------------------------------------------------------------------------- tetrahedra splitting
+@njit(cache=True)
 def overlap_exact(points_u, tets, nx, ny, nz, offsets, voxel_out, vol_out, cen_out, out_count):
     """Exact pairs for every tetrahedron.
 
@@ -234,9 +254,27 @@ def overlap_exact(points_u, tets, nx, ny, nz, offsets, voxel_out, vol_out, cen_o
     voxel_out : flat voxel ids; vol_out : overlap volume (index-space units, i.e. voxels);
     cen_out : (P, 3) centroid of each overlap (index space); out_count : (M,) pairs written.
     """
+    overlap_exact_capped(points_u, tets, nx, ny, nz, offsets, voxel_out, vol_out, cen_out,
+                         out_count, _CAP)
+
+
+@njit(cache=True, parallel=True)
+def overlap_exact_capped(points_u, tets, nx, ny, nz, offsets, voxel_out, vol_out, cen_out,
+                         out_count, capacity):
+    """:func:`overlap_exact` with polyhedra of at most ``capacity`` vertices.
+
+    Tetrahedra whose clipping overflows are redone by tetrahedra splitting; returns their number
+    (tests pass a small capacity, ≥ 4, to exercise that path).
+    """
     n_tets = tets.shape[0]
     n_blocks = min(n_tets, 64)
+    n_fallback = 0
     for b in prange(n_blocks):
+        pos = np.empty((3, capacity, 3))
+        nbr = np.empty((3, capacity, 3), dtype=np.intp)
+        sd = np.empty(capacity)
+        remap = np.empty(capacity, dtype=np.intp)
+        marks = np.empty((capacity, 3), dtype=np.bool_)
         xs = np.empty((_MAX_X, 4, 3))
         ys = np.empty((_MAX_Y, 4, 3))
         tmp = np.empty((3 + 9, 4, 3))
@@ -249,74 +287,13 @@ def overlap_exact(points_u, tets, nx, ny, nz, offsets, voxel_out, vol_out, cen_o
             for v in range(4):
                 for d in range(3):
                     tet[v, d] = points_u[tets[k, v], d]
-            out_count[k] = _exact_one(tet, nx, ny, nz, voxel_out, vol_out, cen_out, offsets[k],
-                                      xs, ys, tmp, zacc, cut, cum, prev)
+            count = _poly_exact_one(tet, nx, ny, nz, voxel_out, vol_out, cen_out, offsets[k],
+                                    pos, nbr, sd, remap, marks, cum, prev)
+            if count < 0:
+                n_fallback += 1
+                count = _tets_exact_one(tet, nx, ny, nz, voxel_out, vol_out, cen_out, offsets[k],
+                                        xs, ys, tmp, zacc, cut, cum, prev)
+            out_count[k] = count
+    return n_fallback
 
 
-@njit(cache=True, parallel=True)
-def overlap_monte_carlo(points_u, tets, nx, ny, nz, n_samples, seed, offsets, voxel_out,
-                        vol_out, cen_out, out_count):
-    """Hit-and-miss estimate (paper eq. 7): F_kj = N_j / N_R with N_R uniform points per tet.
-
-    Same layout as :func:`overlap_exact`; ``vol_out`` holds F_kj · Vol(T_k) and ``cen_out`` the
-    mean position of the points that fell in voxel j. Points outside the grid are dropped.
-    """
-    n_tets = tets.shape[0]
-    for k in prange(n_tets):
-        state = seed_for(seed, 1, k)
-        ids = np.empty(n_samples, dtype=np.int64)
-        pts = np.empty((n_samples, 3))
-        a = points_u[tets[k, 0]]
-        e1 = points_u[tets[k, 1]] - a
-        e2 = points_u[tets[k, 2]] - a
-        e3 = points_u[tets[k, 3]] - a
-        vol = abs(e1[0] * (e2[1] * e3[2] - e2[2] * e3[1]) - e1[1] * (e2[0] * e3[2] - e2[2] * e3[0])
-                  + e1[2] * (e2[0] * e3[1] - e2[1] * e3[0])) / 6.0
-        for r in range(n_samples):
-            state, s = next_uniform(state)
-            state, t = next_uniform(state)
-            state, u = next_uniform(state)
-            s, t, u = _fold_into_tet(s, t, u)
-            for d in range(3):
-                pts[r, d] = a[d] + s * e1[d] + t * e2[d] + u * e3[d]
-            i = int(math.floor(pts[r, 0] + 0.5))
-            j = int(math.floor(pts[r, 1] + 0.5))
-            kk = int(math.floor(pts[r, 2] + 0.5))
-            inside = 0 <= i < nx and 0 <= j < ny and 0 <= kk < nz
-            ids[r] = ((kk * ny + j) * nx + i) if inside else -1
-        order = np.argsort(ids, kind="mergesort")
-        written = 0
-        r = 0
-        while r < n_samples:
-            vid = ids[order[r]]
-            count = 0
-            c0 = 0.0
-            c1 = 0.0
-            c2 = 0.0
-            while r < n_samples and ids[order[r]] == vid:
-                c0 += pts[order[r], 0]
-                c1 += pts[order[r], 1]
-                c2 += pts[order[r], 2]
-                count += 1
-                r += 1
-            if vid >= 0:
-                w = offsets[k] + written
-                voxel_out[w] = vid
-                vol_out[w] = vol * count / n_samples
-                cen_out[w, 0] = c0 / count
-                cen_out[w, 1] = c1 / count
-                cen_out[w, 2] = c2 / count
-                written += 1
-        out_count[k] = written
-
-
-@njit(cache=True)
-def _fold_into_tet(s, t, u):
-    """Map a uniform point of the unit cube to a uniform point of the unit corner tetrahedron."""
-    if s + t > 1.0:
-        s, t = 1.0 - s, 1.0 - t
-    if t + u > 1.0:
-        t, u = 1.0 - u, 1.0 - s - t
-    elif s + t + u > 1.0:
-        s, u = 1.0 - t - u, s + t + u - 1.0
-    return s, t, u
