@@ -23,27 +23,13 @@ from tetdose.transport._history import C_CROSSINGS, ESCAPES, N_COUNTS, flight_me
 from tetdose.transport._physics import transport_coefficients
 from tetdose.transport.xs import build_cross_sections
 
+import helpers
+
 
 def box_mesh(n, size_mm, origin_mm=(0.0, 0.0, 0.0), jitter=0.0, seed=0):
-    """Structured box: n cubes per axis, each split into 6 tets (Kuhn); interior points jittered."""
-    axes = [np.linspace(origin_mm[a], origin_mm[a] + size_mm[a], n[a] + 1) for a in range(3)]
-    pts = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
-    vid = lambda i, j, k: (i * (n[1] + 1) + j) * (n[2] + 1) + k  # noqa: E731
-    tets = []
-    for i, j, k in itertools.product(*(range(m) for m in n)):
-        for perm in itertools.permutations(range(3)):
-            c = [i, j, k]
-            path = [vid(*c)]
-            for a in perm:
-                c[a] += 1
-                path.append(vid(*c))
-            tets.append(path)
-    if jitter:
-        h = np.array(size_mm) / np.array(n)
-        interior = np.all([(pts[:, a] > axes[a][0]) & (pts[:, a] < axes[a][-1])
-                           for a in range(3)], axis=0)
-        pts[interior] += np.random.default_rng(seed).uniform(-jitter, jitter, (interior.sum(), 3)) * h
-    return TetMesh(pts, np.array(tets)).with_fixed_orientation()
+    """Structured box of n cubes per axis (6 Kuhn tets each), by size and origin [mm]."""
+    lo = np.asarray(origin_mm, dtype=float)
+    return helpers.box_mesh(lo, lo + np.asarray(size_mm, dtype=float), n, jitter=jitter, seed=seed)
 
 
 @pytest.fixture(scope="module")

@@ -38,7 +38,11 @@ WATER_MU_RHO_1MEV = 0.07072  # NIST XCOM, cm²/g (total with coherent; coherent 
 
 
 def box_mesh(n, size_mm, origin_mm=(0.0, 0.0, 0.0)):
-    """Structured box: n cubes per axis, each split into 6 tets (Kuhn subdivision)."""
+    """Structured box: n cubes per axis, each split into 6 tets (Kuhn subdivision).
+
+    Cubes are numbered i-major and their 6 tets are consecutive: ``voxel_energy_from_mesh``
+    relies on that order (tests/helpers.box_mesh numbers cubes z-major).
+    """
     axes = [np.linspace(origin_mm[a], origin_mm[a] + size_mm[a], n[a] + 1) for a in range(3)]
     pts = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
     vid = lambda i, j, k: (i * (n[1] + 1) + j) * (n[2] + 1) + k  # noqa: E731

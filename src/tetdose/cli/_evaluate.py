@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 
 from tetdose._atomic import atomic_write_file
-from tetdose.cli._common import add_calibration_arg, calibration_from
-from tetdose.errors import ImageError, MeshError
-from tetdose.io import read_image, read_mesh, write_image
+from tetdose.cli._common import add_calibration_arg, calibration_from, read_mapped_mesh
+from tetdose.errors import ImageError
+from tetdose.io import read_image, write_image
 from tetdose.mapping.figures import plot_evaluation
 from tetdose.mapping.metrics import evaluate
 
@@ -27,9 +27,7 @@ def add_args(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    mesh = read_mesh(args.mesh)
-    if "density" not in mesh.point_data:
-        raise MeshError(f"{args.mesh} has no point_data 'density'; run `tetdose map` first")
+    mesh = read_mapped_mesh(args.mesh)
     ct = read_image(args.ct)
     roi = None
     if args.mask:

@@ -6,10 +6,9 @@ import argparse
 
 import numpy as np
 
-from tetdose.cli._common import add_calibration_arg, calibration_from
-from tetdose.errors import MeshError
+from tetdose.cli._common import add_calibration_arg, calibration_from, read_mapped_mesh
 from tetdose.image import Image
-from tetdose.io import read_image, read_mesh, write_image
+from tetdose.io import read_image, write_image
 from tetdose.voxelize import PARTIAL_MODES, voxelize
 
 
@@ -28,9 +27,7 @@ def add_args(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    mesh = read_mesh(args.mesh)
-    if "density" not in mesh.point_data:
-        raise MeshError(f"{args.mesh} has no point_data 'density'; run `tetdose map` first")
+    mesh = read_mapped_mesh(args.mesh)
     like = read_image(args.like)
     cal = calibration_from(args)
     background: str | float | Image
