@@ -180,6 +180,7 @@ def test_metrics_match_hand_computation():
     e = 100 * np.abs(ev.original.array - ev.reconstruction.array)[roi] / ev.original.array[roi]
     assert ev.metrics.rmde_pct == pytest.approx(e.mean())
     assert ev.metrics.esd_pct == pytest.approx(np.sqrt(((e - e.mean()) ** 2).mean()))
+    assert ev.metrics.median_error_pct == pytest.approx(np.median(e))
     assert ev.metrics.n_voxels == roi.sum()
     image_mass = ev.original.array[roi].sum() * GRID.voxel_volume_mm3 / 1000
     assert ev.metrics.image_mass_g == pytest.approx(image_mass)
