@@ -31,6 +31,8 @@ from tetdose.compare.report import (
     dvh_figure,
     gamma_figure,
     profiles_figure,
+    pyplot,
+    render_png,
     write_report,
 )
 from tetdose.compare.resample import grid_dose_to_mesh, mesh_dose_to_grid
@@ -265,9 +267,7 @@ def _plan(target_mm: np.ndarray, c: StudyConfig) -> Plan:
 
 def _phases_figure(images: list[Image], percent: np.ndarray) -> Figure:
     """Coronal slices of the virtual 4D-CT at a few phases."""
-    from tetdose.compare.report import _plt, _render
-
-    plt = _plt()
+    plt = pyplot()
     picks = sorted({0, len(images) // 4, len(images) // 2, len(images) - 1})
     fig, axes = plt.subplots(1, len(picks), figsize=(3.2 * len(picks), 3.6))
     j = images[0].grid.shape[1] // 2
@@ -277,7 +277,7 @@ def _phases_figure(images: list[Image], percent: np.ndarray) -> Figure:
                   aspect=sz / sx)
         ax.set_title(f"phase {percent[p]:.0f} %")
         ax.set_axis_off()
-    return Figure("ct4d_phases", "Virtual 4D-CT, coronal slices (HU −1000…400)", _render(fig))
+    return Figure("ct4d_phases", "Virtual 4D-CT, coronal slices (HU −1000…400)", render_png(fig))
 
 
 def _covered(mesh: TetMesh, grid: ImageGrid) -> np.ndarray:

@@ -37,7 +37,7 @@ class Figure:
     data: dict[str, Any] = field(default_factory=dict)
 
 
-def _render(fig: Any) -> bytes:
+def render_png(fig: Any) -> bytes:
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=100, bbox_inches="tight")
     import matplotlib.pyplot as plt
@@ -46,7 +46,7 @@ def _render(fig: Any) -> bytes:
     return buf.getvalue()
 
 
-def _plt() -> Any:
+def pyplot() -> Any:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -62,7 +62,7 @@ def dose_slices_figure(a: Image, b: Image, *, labels: tuple[str, str] = ("mesh",
         k = int(np.unravel_index(int(np.argmax(a.array)), a.array.shape)[0])
     sa, sb = np.asarray(a.array[k], float), np.asarray(b.array[k], float)
     diff = sa - sb
-    plt = _plt()
+    plt = pyplot()
     fig, axes = plt.subplots(1, 3, figsize=(13, 4))
     vmax = max(float(sa.max()), float(sb.max()), 1e-30)
     lim = max(float(np.abs(diff).max()), 1e-30)
@@ -75,26 +75,26 @@ def dose_slices_figure(a: Image, b: Image, *, labels: tuple[str, str] = ("mesh",
         fig.colorbar(im, ax=ax, shrink=0.8)
     data = {"k": k, labels[0]: sa, labels[1]: sb, "difference_gy": diff}
     return Figure(f"dose_slice_k{k}", f"Axial slice {k}: doses and difference [Gy]",
-                  _render(fig), data)
+                  render_png(fig), data)
 
 
 def gamma_figure(result: GammaResult, *, k: int) -> Figure:
     """Gamma map of axial slice k (NaN = not evaluated; values above 2 clipped for display)."""
     g = result.gamma[k]
-    plt = _plt()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(6, 4.5))
     im = ax.imshow(np.clip(g, 0, 2), origin="lower", cmap="RdYlGn_r", vmin=0, vmax=2)
     crit = result.summary()["criterion"]
     ax.set_title(f"γ {crit}: {result.pass_rate_percent:.2f} % pass")
     fig.colorbar(im, ax=ax, shrink=0.8)
     name = "gamma_" + str(crit).replace("%", "pct").replace("/", "_").replace(" ", "_")
-    return Figure(f"{name}_k{k}", f"Gamma {crit}, slice {k}", _render(fig),
+    return Figure(f"{name}_k{k}", f"Gamma {crit}, slice {k}", render_png(fig),
                   {"k": k, "gamma": g, **result.summary()})
 
 
 def dvh_figure(curves: Mapping[str, Sequence[DVH]]) -> Figure:
     """Cumulative DVHs, one colour per structure, one line style per dose source."""
-    plt = _plt()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(7, 4.5))
     top = max(float(h.dose_gy[0]) for hs in curves.values() for h in hs)
     levels = np.linspace(0.0, 1.05 * top, 200)
@@ -107,11 +107,11 @@ def dvh_figure(curves: Mapping[str, Sequence[DVH]]) -> Figure:
     ax.set_xlabel("dose [Gy]")
     ax.set_ylabel("volume [%]")
     ax.legend(fontsize=7)
-    return Figure("dvh", "Cumulative dose–volume histograms", _render(fig), data)
+    return Figure("dvh", "Cumulative dose–volume histograms", render_png(fig), data)
 
 
 def profiles_figure(profiles: Sequence[Profile], *, name: str = "profile") -> Figure:
-    plt = _plt()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(7, 4))
     data: dict[str, Any] = {}
     for p in profiles:
@@ -121,7 +121,7 @@ def profiles_figure(profiles: Sequence[Profile], *, name: str = "profile") -> Fi
     ax.set_xlabel("distance along the line [mm]")
     ax.set_ylabel("dose [Gy]")
     ax.legend()
-    return Figure(name, f"Dose profile {name}", _render(fig), data)
+    return Figure(name, f"Dose profile {name}", render_png(fig), data)
 
 
 def _jsonable(x: Any) -> Any:
