@@ -6,7 +6,9 @@ run is reproducible. The mesh accumulation needs no warping because every tetrah
 mass (:mod:`tetdose.accumulate`). Given a reference CT, each phase is also voxelized (the virtual
 4D-CT density, outside the mesh the reference CT) and transported on voxels; those doses are
 accumulated onto the reference grid by direct dose mapping and by energy/mass transfer, with the
-motion taken from the mesh, so the three accumulations differ only by method.
+motion taken from the mesh, so the three accumulations differ only by method. With a
+``dask.distributed`` client the batches of every phase and geometry run on the cluster
+(:mod:`tetdose.transport.distributed`), bitwise the same doses as in this process.
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ import json
 import os
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from tqdm.auto import tqdm
@@ -27,8 +30,10 @@ from tetdose.accumulate import (
     energy_mass_transfer,
 )
 from tetdose.calibration import HUCalibration
+from tetdose.errors import ImageError, MeshError
 from tetdose.image import Image
 from tetdose.io import write_image, write_mesh
+from tetdose.mesh import TetMesh
 from tetdose.motion.ct4d import phase_densities
 from tetdose.motion.phases import PhaseSeries
 from tetdose.transport import DoseResult, Plan, TransportSettings, simulate
@@ -58,11 +63,16 @@ class Dose4D:
     voxel: VoxelDose4D | None
 
     def summary(self) -> dict[str, object]:
-        """Ledger, lost photons and timing per phase, and the accumulated dose range."""
+        """Ledger, lost photons and timing per phase, and the accumulated dose range.
+
+        ``wall_s``: the phase's run (with dask: the whole distributed call); ``transport_s``:
+        the time spent on this phase's batches (with dask: summed over its worker tasks).
+        """
         return {
             "phases": [{"phase_percent": float(self.series.phase_percent[k]),
                         "ledger": r.ledger, "lost_photons": r.lost_photons,
                         "relocations": r.relocations, "wall_s": r.wall_s,
+                        "transport_s": r.extra.get("task_s", r.wall_s),
                         "max_dose_gy": float(r.dose_gy.max())}
                        for k, r in enumerate(self.results)],
             "accumulated_max_dose_gy": float(self.accumulated.dose_gy.max()),
@@ -72,35 +82,50 @@ class Dose4D:
 
 def run_dose4d(series: PhaseSeries, plan: Plan, settings: TransportSettings, *,
                ct_hu: Image | None = None, calibration: HUCalibration | None = None,
-               phase_density: list[Image] | None = None, progress: bool = False) -> Dose4D:
+               phase_density: list[Image] | None = None, progress: bool = False,
+               client: Any = None, batches_per_task: int = 1) -> Dose4D:  # noqa: ANN401
     """Transport ``plan`` on every phase of ``series`` (which must carry densities).
 
     With ``ct_hu`` the voxel doses on the virtual 4D-CT and their accumulations are computed too
     (``phase_density``: the phases' density images if already voxelized, see
-    :func:`tetdose.motion.ct4d.phase_densities`).
+    :func:`tetdose.motion.ct4d.phase_densities`). Phase k (mesh and voxels) draws from random
+    stream k of ``settings.seed``. With a ``dask.distributed`` ``client`` every phase's batches
+    (``batches_per_task`` per task) of both geometries are spread over the cluster at once
+    (:func:`tetdose.transport.distributed.simulate_distributed`); the doses are bitwise those of
+    the local run.
     """
     if series.density_g_cm3 is None:
-        raise ValueError("the phases carry no density; run the density update first")
-    meshes = [series.mesh(k) for k in range(series.n_phases)]
-    results = [simulate(m, plan, replace(settings, stream=k), progress=False)
-               for k, m in enumerate(tqdm(meshes, desc="mesh dose per phase",
-                                          disable=not progress))]
-    accumulated = accumulate_meshes(meshes, [r.dose_gy for r in results],
-                                    weights=series.time_weight,
-                                    dose_std_gy=[r.dose_std_gy for r in results])
-    voxel = None
+        raise MeshError("the phases carry no density; run the density update first "
+                        "(tetdose deform, or motion.update_series)")
+    n = series.n_phases
+    meshes = [series.mesh(k) for k in range(n)]
+    density = None
     if ct_hu is not None:
         density = phase_density or phase_densities(series, ct_hu, calibration=calibration,
                                                    progress=progress)
-        voxel = _voxel_way(series, density, plan, settings, progress)
-    return Dose4D(series, results, accumulated, voxel)
+        if len(density) != n:
+            raise ImageError(f"{len(density)} phase density images for {n} phases; give one "
+                             "per phase")
+    geoms: list[TetMesh | Image] = [*meshes, *(density or [])]
+    streams = [replace(settings, stream=k % n) for k in range(len(geoms))]
+    if client is None:
+        results = [simulate(g, plan, st, progress=False) for g, st in
+                   zip(tqdm(geoms, desc="dose per phase (mesh, then voxels)",
+                            disable=not progress), streams, strict=True)]
+    else:
+        from tetdose.transport.distributed import simulate_distributed
+
+        results = simulate_distributed(client, geoms, plan, streams,
+                                       batches_per_task=batches_per_task, progress=progress)
+    accumulated = accumulate_meshes(meshes, [r.dose_gy for r in results[:n]],
+                                    weights=series.time_weight,
+                                    dose_std_gy=[r.dose_std_gy for r in results[:n]])
+    voxel = None if density is None else _voxel_way(series, density, results[n:])
+    return Dose4D(series, results[:n], accumulated, voxel)
 
 
-def _voxel_way(series: PhaseSeries, density: list[Image], plan: Plan,
-               settings: TransportSettings, progress: bool) -> VoxelDose4D:
-    results = [simulate(rho, plan, replace(settings, stream=k), progress=False)
-               for k, rho in enumerate(tqdm(density, desc="voxel dose per phase",
-                                            disable=not progress))]
+def _voxel_way(series: PhaseSeries, density: list[Image],
+               results: list[DoseResult]) -> VoxelDose4D:
     doses = [r.to_images()[0] for r in results]
     ref, pts, w = series.reference, series.points_mm, series.time_weight
     grid = density[0].grid

@@ -7,7 +7,9 @@ for a CT) and the JSON run record beside it (``dose.json`` for ``dose.vtu``).
 from __future__ import annotations
 
 import argparse
+from contextlib import nullcontext
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -31,6 +33,33 @@ def add_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--labels", type=Path, help="label image for --ct (region → [materials])")
     parser.add_argument("-o", "--output", type=Path, required=True,
                         help="dose.vtu (with --mesh) or dose.nrrd / .mha / .nii.gz (with --ct)")
+    add_dask_arg(parser)
+
+
+def add_dask_arg(parser: argparse.ArgumentParser) -> None:
+    """``--dask SCHEDULER|local:N`` (shared with ``tetdose dose4d``)."""
+    parser.add_argument("--dask", metavar="SCHEDULER|local:N",
+                        help="spread the batches over a dask.distributed cluster: a scheduler "
+                             "address (tcp://host:8786) or local:N for N worker processes here; "
+                             "same dose, bit for bit (needs tetdose[dask])")
+
+
+def dask_context(spec: str | None) -> Any:  # noqa: ANN401 - context manager
+    """A context yielding a dask client for ``--dask``, or None without it."""
+    if spec is None:
+        return nullcontext(None)
+    from tetdose.transport.distributed import dask_client
+
+    return dask_client(spec)
+
+
+def _simulate(client: Any, geometry: Any, plan: Any, settings: Any, **kw: Any) -> Any:  # noqa: ANN401
+    from tetdose.transport import simulate
+    from tetdose.transport.distributed import simulate_distributed
+
+    if client is None:
+        return simulate(geometry, plan, settings, **kw)
+    return simulate_distributed(client, geometry, plan, settings, **kw)
 
 
 def record_path(output: Path) -> Path:
@@ -46,7 +75,7 @@ def _std_path(output: Path) -> Path:
 def run(args: argparse.Namespace) -> int:
     from tetdose.calibration import HUCalibration
     from tetdose.io import read_image, read_mesh, write_image, write_mesh
-    from tetdose.transport import Plan, TransportSettings, simulate
+    from tetdose.transport import Plan, TransportSettings
 
     if args.histories != int(args.histories) or args.histories < 1:
         raise PlanError(f"--histories must be a positive whole number, got {args.histories:g}")
@@ -54,12 +83,13 @@ def run(args: argparse.Namespace) -> int:
     settings = TransportSettings(int(args.histories), args.batches, args.seed,
                                  args.cutoff_mev, args.estimator)
     progress = False if args.quiet else None
-    extra: dict[str, object] = {"plan": str(args.plan)}
+    extra: dict[str, object] = {"plan": str(args.plan), "dask": args.dask}
     if args.mesh is not None:
         if args.output.suffix.lower() not in (".vtu", ".vtk", ".xdmf", ".msh"):
             raise PlanError(f"with --mesh the output must be a mesh file (.vtu), got {args.output}")
         mesh = read_mesh(args.mesh)
-        result = simulate(mesh, plan, settings, progress=progress)
+        with dask_context(args.dask) as client:
+            result = _simulate(client, mesh, plan, settings, progress=progress)
         write_mesh(args.output, result.to_mesh(mesh))
         extra.update(mesh=str(args.mesh), outputs=[str(args.output)])
     else:
@@ -68,7 +98,8 @@ def run(args: argparse.Namespace) -> int:
                else HUCalibration.schneider2000())
         density = ct.with_array(cal.density(ct.array).astype(np.float64))
         labels = read_image(args.labels) if args.labels else None
-        result = simulate(density, plan, settings, labels=labels, progress=progress)
+        with dask_context(args.dask) as client:
+            result = _simulate(client, density, plan, settings, labels=labels, progress=progress)
         dose, dose_std = result.to_images()
         write_image(args.output, dose.with_array(dose.array.astype(np.float32)))
         write_image(_std_path(args.output), dose_std.with_array(dose_std.array.astype(np.float32)))

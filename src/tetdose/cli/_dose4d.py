@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from tetdose.cli._common import add_calibration_arg, calibration_from
+from tetdose.cli._dose import add_dask_arg, dask_context
 from tetdose.dose4d import run_dose4d, write_dose4d
 from tetdose.io import read_image
 from tetdose.motion.phases import PhaseSeries
@@ -25,6 +26,9 @@ def add_args(p: argparse.ArgumentParser) -> None:
                         "accumulate them by direct dose mapping and energy/mass transfer")
     p.add_argument("-o", "--output", type=Path, required=True, help="output folder")
     add_calibration_arg(p)
+    add_dask_arg(p)
+    p.add_argument("--batches-per-task", type=int, default=1,
+                   help="with --dask: batches per dask task (default 1)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -33,8 +37,10 @@ def run(args: argparse.Namespace) -> int:
     settings = TransportSettings(n_histories=int(args.histories), n_batches=args.batches,
                                  seed=args.seed, estimator=args.estimator)
     ct = read_image(args.like) if args.like else None
-    result = run_dose4d(series, plan, settings, ct_hu=ct, calibration=calibration_from(args),
-                        progress=not args.quiet)
+    with dask_context(args.dask) as client:
+        result = run_dose4d(series, plan, settings, ct_hu=ct, calibration=calibration_from(args),
+                            progress=not args.quiet, client=client,
+                            batches_per_task=args.batches_per_task)
     write_dose4d(result, args.output)
     acc = result.accumulated
     print(f"{series.n_phases} phases × {settings.n_histories} histories: accumulated dose max "

@@ -5,25 +5,28 @@ The work unit is a group of batches of one geometry: the task calls
 draws from its own counter-based stream ``seed_for(seed, stream, history)`` and every batch row
 is summed in history order, so the rows — and the assembled :class:`DoseResult` — are bitwise
 those of a local :func:`tetdose.transport.simulate` with the same settings, whatever the number
-of workers, threads or tasks. Geometry and cross-section tables are scattered once per phase
-(``broadcast=True``); workers compile the kernels on first use (numba's cache helps when
-``NUMBA_CACHE_DIR`` is shared).
+of workers, threads or tasks. Each geometry is scattered once (``broadcast=True``), each
+distinct set of cross-section tables once per call, and all geometries' tasks are submitted at
+once, so a cluster stays busy across breathing phases. Workers compile the kernels on first
+use (numba's cache helps when ``NUMBA_CACHE_DIR`` is shared).
 
 Example::
 
-    from dask.distributed import Client
-    client = Client("scheduler:8786")
-    results = simulate_distributed(client, [phase0_mesh, phase1_mesh], plan, settings)
+    with dask_client("local:2") as client:   # or dask_client("tcp://scheduler:8786")
+        results = simulate_distributed(client, [phase0_mesh, phase1_mesh], plan,
+                                       [settings, replace(settings, stream=1)])
 """
 
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from typing import Any
 
 from tqdm.auto import tqdm
 
+from tetdose._typing import FloatArray, IntArray
 from tetdose.errors import PlanError, TetdoseError
 from tetdose.image import Image
 from tetdose.mesh import TetMesh
@@ -31,12 +34,15 @@ from tetdose.transport import (
     PROGRESS_DELAY_S,
     _assemble,
     _cross_sections,
+    _Job,
     _mesh_job,
     _voxel_job,
     run_batches,
 )
 from tetdose.transport.model import Plan, TransportSettings
 from tetdose.transport.result import DoseResult
+
+_Rows = tuple[FloatArray, FloatArray, IntArray]
 
 
 def _distributed() -> Any:  # noqa: ANN401 - module object
@@ -50,15 +56,59 @@ def _distributed() -> Any:  # noqa: ANN401 - module object
     return distributed
 
 
+@contextmanager
+def dask_client(spec: str) -> Iterator[Any]:
+    """A ``distributed.Client`` for ``spec``, closed on exit (with its cluster, if started).
+
+    ``spec`` is a scheduler address (``tcp://host:8786``) or ``local:N``: a ``LocalCluster`` of
+    N single-threaded worker processes on this machine (one numba thread each, no dashboard).
+    Worker processes are spawned: a script that calls this must guard its entry point with
+    ``if __name__ == "__main__":``.
+    """
+    distributed = _distributed()
+    if spec.startswith("local"):
+        n = spec.partition(":")[2] or "0"
+        if not n.isdigit() or int(n) < 1:
+            raise PlanError(f"--dask local:N needs a positive worker count N, got {spec!r}")
+        import dask
+
+        # one numba thread per single-threaded worker (set before the worker imports numba)
+        with dask.config.set({"distributed.nanny.pre-spawn-environ.NUMBA_NUM_THREADS": 1}), \
+                distributed.LocalCluster(n_workers=int(n), threads_per_worker=1, processes=True,
+                                         dashboard_address=None) as cluster, \
+                distributed.Client(cluster) as client:
+            yield client
+    else:
+        try:
+            client = distributed.Client(spec, timeout="20s")
+        except OSError as exc:
+            raise PlanError(f"cannot reach the dask scheduler at {spec!r} ({exc}); start one "
+                            "(dask scheduler) or use --dask local:N") from exc
+        with client:
+            yield client
+
+
+def _timed_batches(job: _Job, xs: Any, settings: TransportSettings, b_start: int,  # noqa: ANN401
+                   b_stop: int) -> tuple[_Rows, float, float]:
+    """:func:`run_batches` on a worker, with its wall and process CPU times [s]."""
+    t0, cpu0 = time.perf_counter(), time.process_time()
+    rows = run_batches(job, xs, settings, b_start, b_stop)
+    return rows, time.perf_counter() - t0, time.process_time() - cpu0
+
+
 def simulate_distributed(client: Any, geometries: TetMesh | Image | Sequence[TetMesh | Image],  # noqa: ANN401
-                         plan: Plan, settings: TransportSettings, *,
-                         labels: Image | None = None, batches_per_task: int = 1,
+                         plan: Plan, settings: TransportSettings | Sequence[TransportSettings],
+                         *, labels: Image | None = None, batches_per_task: int = 1,
                          progress: bool | None = None) -> DoseResult | list[DoseResult]:
     """Run ``plan`` on one geometry or on each of a list (e.g. breathing phases) on ``client``.
 
     ``geometries``: a :class:`TetMesh` with point_data ``density`` or a density :class:`Image`
-    (with ``labels``), or a sequence of them. Returns one :class:`DoseResult`, or a list in the
-    order of ``geometries``; each result's ``wall_s`` is the wall time of the whole call.
+    (with ``labels``), or a sequence of them. ``settings``: one for all, or one per geometry (a
+    phase's random ``stream``). Returns one :class:`DoseResult`, or a list in the order of
+    ``geometries``; each result's ``wall_s`` is the wall time of the whole call,
+    ``extra["task_s"]`` the summed wall time of its own tasks on the workers and
+    ``extra["task_cpu_s"]`` their workers' process CPU time (single-threaded workers: the tasks'
+    own plus a little event-loop work; with several threads it includes concurrent tasks).
     """
     distributed = _distributed()
     if not isinstance(client, distributed.Client):
@@ -69,27 +119,45 @@ def simulate_distributed(client: Any, geometries: TetMesh | Image | Sequence[Tet
     geoms = [geometries] if single else list(geometries)
     if not geoms:
         raise PlanError("give at least one geometry (mesh or density image)")
+    each = [settings] * len(geoms) if isinstance(settings, TransportSettings) else list(settings)
+    if len(each) != len(geoms):
+        raise PlanError(f"{len(each)} settings for {len(geoms)} geometries; give one, or one "
+                        "per geometry")
     t0 = time.perf_counter()
-    jobs, tasks = [], []
-    for geom in geoms:
+    jobs, tasks, scattered, xs_of = [], [], [], {}
+    for geom, st in zip(geoms, each, strict=True):
         if isinstance(geom, TetMesh):
-            job = _mesh_job(geom, plan, settings, None)
+            job = _mesh_job(geom, plan, st, None)
         elif isinstance(geom, Image):
-            job = _voxel_job(geom, plan, settings, labels)
+            job = _voxel_job(geom, plan, st, labels)
         else:
             raise PlanError(f"geometries must be TetMesh or density Image, got {type(geom)}")
-        job_f, xs_f = client.scatter([job, _cross_sections(job, settings)], broadcast=True)
-        starts = range(0, settings.n_batches, int(batches_per_task))
-        tasks.append([client.submit(run_batches, job_f, xs_f, settings, b0,
-                                    min(settings.n_batches, b0 + int(batches_per_task)),
-                                    pure=False) for b0 in starts])
+        # Scatter lists (a bare NamedTuple goes element-wise) under fresh keys: with content keys
+        # (hash=True) equal phases (10 % and 90 % of a symmetric cycle) share one key, and a task
+        # was seen cancelled for "lost dependencies" (dask/distributed#4612; hash=False is the
+        # workaround). The futures stay referenced in `scattered` until the rows are gathered.
+        key = (tuple(job.names), st.energy_cutoff_mev)  # phases share their tables
+        if key not in xs_of:
+            xs_of[key] = client.scatter([_cross_sections(job, st)], broadcast=True,
+                                        hash=False)[0]
+        job_f, xs_f = client.scatter([job], broadcast=True, hash=False)[0], xs_of[key]
+        scattered.append(job_f)
+        starts = range(0, st.n_batches, int(batches_per_task))
+        tasks.append([client.submit(_timed_batches, job_f, xs_f, st, b0,
+                                    min(st.n_batches, b0 + int(batches_per_task)), pure=False)
+                      for b0 in starts])
         jobs.append(job)
     all_futures = [f for fs in tasks for f in fs]
     with tqdm(total=len(all_futures), unit="task", desc="transport (dask)", delay=PROGRESS_DELAY_S,
               disable=None if progress is None else not progress) as bar:
         for _ in distributed.as_completed(all_futures):
             bar.update(1)
-    rows = [client.gather(fs) for fs in tasks]
+    done = [client.gather(fs) for fs in tasks]
     wall = time.perf_counter() - t0
-    results = [_assemble(job, plan, settings, r, wall) for job, r in zip(jobs, rows, strict=True)]
+    results = []
+    for job, st, out in zip(jobs, each, done, strict=True):
+        result = _assemble(job, plan, st, [rows for rows, _, _ in out], wall)
+        result.extra["task_s"] = sum(s for _, s, _ in out)
+        result.extra["task_cpu_s"] = sum(c for _, _, c in out)
+        results.append(result)
     return results[0] if single else results
