@@ -191,8 +191,16 @@ def energy_mass_transfer(reference: TetMesh, phase_points_mm: FloatArray,
         m_vox = np.asarray(rho.array, dtype=np.float64).ravel() * (
             dose.grid.voxel_volume_mm3 / MM3_PER_CM3)
         d_vox = np.asarray(dose.array, dtype=np.float64).ravel()
-        for lo in range(0, dose.grid.n_voxels, EMT_CHUNK):
-            ids = np.arange(lo, min(lo + EMT_CHUNK, dose.grid.n_voxels))
+        moving = _voxels_near_box(dose.grid, phase_mesh.bounds_mm())
+        if dose.grid.same_as(grid):  # voxels away from the mesh do not move: transfer in place
+            still = ~moving
+            energy[still] += w[p] * d_vox[still] * m_vox[still]
+            mass[still] += w[p] * m_vox[still]
+            candidates = np.flatnonzero(moving)
+        else:
+            candidates = np.arange(dose.grid.n_voxels)
+        for lo in range(0, len(candidates), EMT_CHUNK):
+            ids = candidates[lo:lo + EMT_CHUNK]
             sub = _sub_voxel_centres(dose.grid, ids, subdivisions)
             back = _carry(phase_mesh, reference.points_mm, sub)
             target, ok = _voxel_of(grid, back)
@@ -203,6 +211,15 @@ def energy_mass_transfer(reference: TetMesh, phase_points_mm: FloatArray,
             mass += np.bincount(target[ok], weights=frac * m_vox[src], minlength=grid.n_voxels)
     dose_gy = np.divide(energy, mass, out=np.zeros_like(energy), where=mass > 0)
     return Image(dose_gy.reshape(grid.shape), grid)
+
+
+def _voxels_near_box(grid: ImageGrid, box_mm: tuple[FloatArray, FloatArray]) -> np.ndarray:
+    """(n_voxels,) True for voxels that may overlap the axis-aligned box (centre within half a
+    voxel diagonal of it); the others lie wholly outside the mesh and do not move."""
+    lo, hi = box_mm
+    half_diag = 0.5 * float(np.linalg.norm(grid.spacing_mm))
+    c = grid.voxel_centers_mm()
+    return np.all((c >= lo - half_diag) & (c <= hi + half_diag), axis=1)
 
 
 def _sub_voxel_centres(grid: ImageGrid, ids: np.ndarray, s: int) -> FloatArray:

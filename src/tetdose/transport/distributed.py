@@ -24,6 +24,7 @@ from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from typing import Any
 
+import numba
 from tqdm.auto import tqdm
 
 from tetdose._typing import FloatArray, IntArray
@@ -70,12 +71,11 @@ def dask_client(spec: str) -> Iterator[Any]:
         n = spec.partition(":")[2] or "0"
         if not n.isdigit() or int(n) < 1:
             raise PlanError(f"--dask local:N needs a positive worker count N, got {spec!r}")
-        import dask
-
-        # one numba thread per single-threaded worker (set before the worker imports numba)
-        with dask.config.set({"distributed.nanny.pre-spawn-environ.NUMBA_NUM_THREADS": 1}), \
-                distributed.LocalCluster(n_workers=int(n), threads_per_worker=1, processes=True,
-                                         dashboard_address=None) as cluster, \
+        # Single-threaded workers; each task limits numba to one thread itself (_timed_batches).
+        # Not through the nanny's pre-spawn environment: that sets NUMBA_NUM_THREADS in this very
+        # process while workers spawn, and numba then refuses to compile anything afterwards.
+        with distributed.LocalCluster(n_workers=int(n), threads_per_worker=1, processes=True,
+                                      dashboard_address=None) as cluster, \
                 distributed.Client(cluster) as client:
             yield client
     else:
@@ -90,7 +90,11 @@ def dask_client(spec: str) -> Iterator[Any]:
 
 def _timed_batches(job: _Job, xs: Any, settings: TransportSettings, b_start: int,  # noqa: ANN401
                    b_stop: int) -> tuple[_Rows, float, float]:
-    """:func:`run_batches` on a worker, with its wall and process CPU times [s]."""
+    """:func:`run_batches` on a worker, with its wall and process CPU times [s].
+
+    Numba uses one thread per task: dask runs as many tasks as the worker has threads.
+    """
+    numba.set_num_threads(1)
     t0, cpu0 = time.perf_counter(), time.process_time()
     rows = run_batches(job, xs, settings, b_start, b_stop)
     return rows, time.perf_counter() - t0, time.process_time() - cpu0
