@@ -12,7 +12,7 @@ export MPLBACKEND := Agg
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[dev,fem,dask]'
+	$(PY) -m pip install --quiet -e '.[dev,fem,dask,meshing]'
 	touch $@
 
 venv: $(VENV)/.installed
