@@ -37,8 +37,9 @@ from scipy import ndimage
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
+from tetdose._optional import import_optional
 from tetdose._typing import FloatArray, IntArray
-from tetdose.errors import ImageError, MeshError, TetdoseError
+from tetdose.errors import ImageError, MeshError
 from tetdose.image import Image
 from tetdose.mesh import TetMesh
 
@@ -55,16 +56,9 @@ MIN_SHELL_TETS = 1.0
 
 
 def _optional():  # noqa: ANN202 - module objects
-    try:
-        import gmsh
-        from skimage import measure
-    except ImportError as exc:
-        raise TetdoseError(
-            "meshing a label image with gmsh needs scikit-image and gmsh: install "
-            "tetdose[meshing] (pip install 'tetdose[meshing]' or pip install scikit-image gmsh), "
-            "or use tetdose.phantoms.mesh_labels (structured, no extra dependency)"
-        ) from exc
-    return gmsh, measure
+    purpose = "meshing a label image with gmsh (or use tetdose.phantoms.mesh_labels, no extra)"
+    return (import_optional("gmsh", "meshing", purpose),
+            import_optional("skimage.measure", "meshing", purpose))
 
 
 def label_surface(labels: Image, label_id: int, *, smoothing_sigma_vox: float = 0.0

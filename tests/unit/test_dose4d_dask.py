@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import sys
 from dataclasses import replace
 
 import numpy as np
@@ -160,16 +161,7 @@ def test_cli_dose4d_with_dask_and_missing_dask(tmp_path, monkeypatch, capsys):
     for name in ("phase_000.0.vtu", "phase_050.0.vtu", "accumulated.vtu"):
         a, b = read_mesh(tmp_path / "local" / name), read_mesh(tmp_path / "dask" / name)
         np.testing.assert_array_equal(a.cell_data["dose"], b.cell_data["dose"])
-    import builtins
-
-    real_import = builtins.__import__
-
-    def without_dask(name, *args, **kwargs):
-        if name == "distributed":
-            raise ImportError("no distributed")
-        return real_import(name, *args, **kwargs)
-
-    monkeypatch.setattr(builtins, "__import__", without_dask)
+    monkeypatch.setitem(sys.modules, "distributed", None)  # import now raises ImportError
     assert main([*common, "--dask", "local:1", "-o", str(tmp_path / "none")]) == 2
     assert "tetdose[dask]" in capsys.readouterr().err
     assert not (tmp_path / "none").exists()

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import sys
+
 import numpy as np
 import pytest
 
@@ -68,15 +70,6 @@ def test_bad_arguments_raise(client):
 
 
 def test_missing_dask_names_the_extra(monkeypatch):
-    import builtins
-
-    real_import = builtins.__import__
-
-    def fake_import(name, *args, **kwargs):
-        if name == "distributed":
-            raise ImportError("no distributed")
-        return real_import(name, *args, **kwargs)
-
-    monkeypatch.setattr(builtins, "__import__", fake_import)
+    monkeypatch.setitem(sys.modules, "distributed", None)  # import now raises ImportError
     with pytest.raises(TetdoseError, match=r"tetdose\[dask\]"):
         _distributed()

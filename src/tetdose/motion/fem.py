@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from tetdose._optional import import_optional
 from tetdose._typing import BoolArray, FloatArray, IntArray
 from tetdose.errors import MeshError, TetdoseError
 from tetdose.mesh import TetMesh, signed_volumes_mm3
@@ -31,15 +32,9 @@ POISSON = 0.45
 
 
 def _skfem():  # noqa: ANN202 - module object
-    try:
-        import skfem
-        from skfem.models.elasticity import lame_parameters, linear_elasticity
-    except ImportError as exc:
-        raise TetdoseError(
-            "FEM-driven motion needs scikit-fem: install tetdose[fem] (pip install "
-            "'tetdose[fem]' or pip install scikit-fem)"
-        ) from exc
-    return skfem, lame_parameters, linear_elasticity
+    skfem = import_optional("skfem", "fem", "FEM-driven motion")
+    elasticity = import_optional("skfem.models.elasticity", "fem", "FEM-driven motion")
+    return skfem, elasticity.lame_parameters, elasticity.linear_elasticity
 
 
 def solve_linear_elastic(points_mm: FloatArray, tets: IntArray, fixed: BoolArray,

@@ -27,8 +27,9 @@ from typing import Any
 import numba
 from tqdm.auto import tqdm
 
+from tetdose._optional import import_optional
 from tetdose._typing import FloatArray, IntArray
-from tetdose.errors import PlanError, TetdoseError
+from tetdose.errors import PlanError
 from tetdose.image import Image
 from tetdose.mesh import TetMesh
 from tetdose.transport import (
@@ -47,14 +48,7 @@ _Rows = tuple[FloatArray, FloatArray, IntArray]
 
 
 def _distributed() -> Any:  # noqa: ANN401 - module object
-    try:
-        import distributed
-    except ImportError as exc:
-        raise TetdoseError(
-            "distributed transport needs dask.distributed: install tetdose[dask] (pip install "
-            "'tetdose[dask]' or pip install 'dask[distributed]')"
-        ) from exc
-    return distributed
+    return import_optional("distributed", "dask", "distributed transport")
 
 
 @contextmanager
