@@ -38,13 +38,12 @@ from tetdose.compare.report import (
 from tetdose.compare.resample import grid_dose_to_mesh, mesh_dose_to_grid
 from tetdose.dicom import write_rt_dose
 from tetdose.dose4d import run_dose4d, write_dose4d
-from tetdose.image import Image, ImageGrid
+from tetdose.image import Image
 from tetdose.io import write_mesh
 from tetdose.mapping import map_density
 from tetdose.mapping.figures import plot_evaluation
 from tetdose.mapping.metrics import evaluate
-from tetdose.mapping.overlap import compute_overlap
-from tetdose.mesh import TetMesh
+from tetdose.mapping.overlap import Overlap, compute_overlap
 from tetdose.motion import BreathingModel, update_series
 from tetdose.motion.ct4d import phase_densities, to_hu, write_4dct
 from tetdose.phantoms import make_phantom, write_phantom
@@ -198,16 +197,17 @@ class _Run:
     def compare(self) -> str:
         grid, d4 = self.ph.ct.grid, self.d4
         ref_mesh, phase0 = self.series.reference, self.series.mesh(0)
-        static_mesh = mesh_dose_to_grid(phase0, d4.results[0].dose_gy, grid)
+        ov0, ov_ref = compute_overlap(phase0, grid), self.mapped.overlap  # ref = mapped mesh
+        static_mesh = mesh_dose_to_grid(phase0, d4.results[0].dose_gy, grid, overlap=ov0)
         static_vox = d4.voxel.doses[0]
         # The voxel dose seen at the mesh's resolution (energy-conserving there and back): what
         # differs from the mesh dose then is physics and statistics, not cell size.
         static_vox_on_mesh = mesh_dose_to_grid(
-            phase0, grid_dose_to_mesh(phase0, static_vox, density_g_cm3=None), grid)
-        acc_mesh = mesh_dose_to_grid(ref_mesh, d4.accumulated.dose_gy, grid)
+            phase0, grid_dose_to_mesh(phase0, static_vox, overlap=ov0), grid, overlap=ov0)
+        acc_mesh = mesh_dose_to_grid(ref_mesh, d4.accumulated.dose_gy, grid, overlap=ov_ref)
         emt, ddm = d4.voxel.energy_mass_transfer, d4.voxel.direct_mapping
         # Gamma only where the mesh is: outside the body mesh only the voxel engine scores dose.
-        inside = _covered(phase0, grid) & _covered(ref_mesh, grid)
+        inside = _covered(ov0) & _covered(ov_ref)
         k = int(np.rint(grid.physical_to_index(self.target_mm[None])[0, 2]))
         pairs = {"static phase, matched resolution: voxel vs mesh": (static_vox_on_mesh,
                                                                      static_mesh),
@@ -280,9 +280,10 @@ def _phases_figure(images: list[Image], percent: np.ndarray) -> Figure:
     return Figure("ct4d_phases", "Virtual 4D-CT, coronal slices (HU −1000…400)", render_png(fig))
 
 
-def _covered(mesh: TetMesh, grid: ImageGrid) -> np.ndarray:
-    """Voxels at least half inside ``mesh`` (numpy shape of the grid)."""
-    cover = compute_overlap(mesh, grid).covered_volume_per_voxel_mm3()
+def _covered(overlap: Overlap) -> np.ndarray:
+    """Voxels at least half inside the overlap's mesh (numpy shape of its grid)."""
+    grid = overlap.grid
+    cover = overlap.covered_volume_per_voxel_mm3()
     return (cover >= 0.5 * grid.voxel_volume_mm3).reshape(grid.shape)
 
 

@@ -174,6 +174,14 @@ def interaction(xs, m, cell, e, u, v, w, state, cutoff, track, tally, ledger, co
     return state, True, e_out, u2, v2, w2, n_stack
 
 
+@njit(cache=True, inline="always")
+def pop_photon(stack, i):
+    """Row ``i`` of the secondary stack, as pushed by :func:`interaction`:
+    (energy [MeV], x, y, z [mm], u, v, w, cell id)."""
+    r = stack[i]
+    return r[0], r[1], r[2], r[3], r[4], r[5], r[6], int(r[7])
+
+
 @njit(cache=True)
 def history_mesh(g, xs, e, k, x, y, z, u, v, w, state, cutoff, track, tally,
                  ledger, counts, stack):
@@ -200,9 +208,7 @@ def history_mesh(g, xs, e, k, x, y, z, u, v, w, state, cutoff, track, tally,
             if n_stack == 0:
                 return state
             n_stack -= 1
-            e, x, y, z, u, v, w = stack[n_stack, 0], stack[n_stack, 1], stack[n_stack, 2], \
-                stack[n_stack, 3], stack[n_stack, 4], stack[n_stack, 5], stack[n_stack, 6]
-            k = int(stack[n_stack, 7])
+            e, x, y, z, u, v, w, k = pop_photon(stack, n_stack)
             entry = -1
 
 
@@ -226,5 +232,4 @@ def history_voxel(g, xs, e, x, y, z, u, v, w, state, cutoff, track, tally,
             if n_stack == 0:
                 return state
             n_stack -= 1
-            e, x, y, z, u, v, w = stack[n_stack, 0], stack[n_stack, 1], stack[n_stack, 2], \
-                stack[n_stack, 3], stack[n_stack, 4], stack[n_stack, 5], stack[n_stack, 6]
+            e, x, y, z, u, v, w, _ = pop_photon(stack, n_stack)
