@@ -1,24 +1,28 @@
 """Transport speed: tet crossings/s (pure walk), photons/s and crossings/s with physics, mesh vs
-voxel time per history, 1 → 2 thread scaling, time to 1 % uncertainty (analog vs track-length).
+voxel time per history, 1 → 2 thread scaling against the machine's own, time to 1 % uncertainty
+(analog vs track-length).
 
-Run: ``NUMBA_CACHE_DIR=... .venv/bin/python bench/bench_transport.py [cubes_per_axis] [histories]``.
-A 200 mm water box of n³ cubes (6 tets each) and the matching n³ voxel grid (matched
-resolution: each voxel is exactly 6 tets); a 1.25 MeV 100 × 100 mm² parallel field along z.
-The first call of every kernel is a warm-up whose time is reported as compile/load time.
-Single-thread figures are CPU time (``time.process_time``, batch loop only), which the other jobs on a shared
-machine disturb less than wall time; thread scaling needs wall time, so it is repeated and the
-spread printed.
+Run: ``NUMBA_CACHE_DIR=... .venv/bin/python bench/bench_transport.py [SIZES] [HISTORIES]``, SIZES
+a comma list of cubes per axis (default ``10,20,30,40``; the last one is the main case).
+A 200 mm water box of n³ cubes (6 tets each: 6 k, 48 k, 162 k, 384 k tets) and the matching n³
+voxel grid (matched resolution: each voxel is exactly 6 tets); a 1.25 MeV 100 × 100 mm² parallel
+field along z. The first call of every kernel is a warm-up whose time is reported as compile/load
+time. Single-thread figures are the best of several runs in CPU time (``time.process_time``),
+which other jobs on a shared machine disturb less than wall time; thread scaling needs wall time,
+so it is repeated, the spread printed, and set against the scaling of a pure-arithmetic numba
+kernel measured in the same process (what this machine's two cores give at best).
 """
 
 from __future__ import annotations
 
 import itertools
+import os
 import sys
 import time
 
 import numba
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from tetdose.image import Image, ImageGrid
 from tetdose.mesh import TetMesh
@@ -30,7 +34,7 @@ from tetdose.transport import (
     morton_order,
     simulate,
 )
-from tetdose.transport._geometry_tet import enter_mesh, exit_face, next_tet
+from tetdose.transport._geometry_tet import enter_mesh, exit_face, next_tet, prefetch_neighbours
 
 PLAN = Plan((PhotonSource("parallel", [0, 0, -150.0], [0, 0, 1], energies_mev=[1.25],
                           field_mm=[100.0, 100.0]),))
@@ -60,11 +64,13 @@ def box(n: int, size_mm: float = 200.0) -> tuple[TetMesh, Image]:
 def _walk_rays(g, starts, dirs):
     """Pure-absorber walk (no physics): count tetrahedron crossings of all rays."""
     crossings = 0
+    no_tally = np.empty(0)
     for r in range(starts.shape[0]):
         u, v, w = dirs[r, 0], dirs[r, 1], dirs[r, 2]
         k, x, y, z, _ = enter_mesh(g, starts[r, 0], starts[r, 1], starts[r, 2], u, v, w)
         entry = -1
         while k >= 0:
+            prefetch_neighbours(g, k, entry, no_tally)
             f, t = exit_face(g, k, x, y, z, u, v, w, entry)
             if f < 0:
                 break
@@ -83,7 +89,7 @@ def _best_cpu(fn, *args, repeat: int = 5):  # noqa: ANN001, ANN202
     return out, best
 
 
-def bench_walk(mesh: TetMesh) -> None:
+def bench_walk(mesh: TetMesh, all_orders: bool) -> None:
     rng = np.random.default_rng(0)
     n = 20000
     beam = (np.column_stack([rng.uniform(-90, 90, (n, 2)), np.full(n, -150.0)]),
@@ -93,8 +99,9 @@ def bench_walk(mesh: TetMesh) -> None:
     out = rng.normal(size=(n, 3))
     out *= 180.0 / np.linalg.norm(out, axis=1, keepdims=True)
     iso = (out, aim - out)
-    orders = {"as built (z fastest)": None, "Morton": morton_order(mesh.centroids_mm),
-              "random": rng.permutation(mesh.n_tets)}
+    orders = {"Morton": morton_order(mesh.centroids_mm)}
+    if all_orders:
+        orders |= {"as built (z fastest)": None, "random": rng.permutation(mesh.n_tets)}
     for name, order in orders.items():
         g = mesh_geometry(mesh, mesh.point_data["density"], np.zeros(mesh.n_tets, np.intp), order)
         for rays, (starts, dirs) in (("beam rays", beam), ("isotropic rays", iso)):
@@ -103,31 +110,65 @@ def bench_walk(mesh: TetMesh) -> None:
             _walk_rays(g, starts[:1], dirs[:1])
             compile_s = time.perf_counter() - t0
             count, cpu = _best_cpu(_walk_rays, g, starts, dirs)
-            print(f"pure walk, tets {name:20s} {rays:14s}: {count / cpu / 1e6:5.1f} M crossings/s"
-                  f" (1 core, CPU time, incl. entry; compile/load {compile_s:.1f} s)")
+            print(f"  pure walk, {mesh.n_tets:7d} tets {name:20s} {rays:14s}: "
+                  f"{count / cpu / 1e6:5.1f} M crossings/s (1 core, incl. entry; compile/load "
+                  f"{compile_s:.1f} s)")
 
 
-def bench_transport(mesh: TetMesh, image: Image, n_hist: int) -> None:
+def bench_transport(mesh: TetMesh, image: Image, n_hist: int, repeat: int = 3) -> None:
     numba.set_num_threads(1)
+    per_history = {}
     for geom, name in ((mesh, "mesh"), (image, "voxel")):
         t0 = time.perf_counter()
         simulate(geom, PLAN, TransportSettings(20, 2), progress=False)
-        print(f"{name}: compile/load + set-up {time.perf_counter() - t0:.1f} s")
+        compile_s = time.perf_counter() - t0
         for est in ("track_length", "analog"):
-            t0 = time.process_time()
-            r = simulate(geom, PLAN, TransportSettings(n_hist, 10, estimator=est), progress=False)
+            settings = TransportSettings(n_hist, 10, estimator=est)
+            runs = [simulate(geom, PLAN, settings, progress=False) for _ in range(repeat)]
+            r = min(runs, key=lambda run: run.extra["cpu_s"])
             cpu = r.extra["cpu_s"]
-            if est == "track_length":
-                print(f"  {name:5s} set-up (geometry arrays, tables): "
-                      f"{time.process_time() - t0 - cpu:.2f} s CPU")
-            extra = (f", {r.crossings / cpu / 1e6:.1f} M crossings/s "
+            per_history[name, est] = cpu / n_hist
+            extra = (f", {r.crossings / cpu / 1e6:4.1f} M crossings/s "
                      f"({r.crossings / n_hist:.0f} per history)" if name == "mesh" else "")
-            print(f"  {name:5s} 1 thread {est:12s}: {n_hist / cpu:8.0f} photons/s, "
-                  f"{cpu / n_hist * 1e6:6.2f} µs/history (CPU){extra}; "
-                  f"tally {r.energy_per_batch_mev.nbytes / 2**20:.1f} MiB")
+            print(f"  {name:5s} {est:12s}: {n_hist / cpu:8.0f} photons/s, "
+                  f"{cpu / n_hist * 1e6:6.2f} µs/history{extra} (1 core; compile/load "
+                  f"{compile_s:.1f} s)")
+    ratio = per_history["mesh", "track_length"] / per_history["voxel", "track_length"]
+    print(f"  mesh / voxel time per history (track-length): {ratio:.1f}×")
 
 
-def bench_threads(mesh: TetMesh, n_hist: int, repeat: int = 3) -> None:
+def bench_ceiling(repeat: int = 3) -> float:
+    """1 → 2 thread speed-up of a pure-arithmetic kernel: what the machine's cores give at best."""
+    if numba.config.NUMBA_NUM_THREADS < 2:
+        return 1.0
+    _arithmetic(10)
+    walls: dict[int, list[float]] = {1: [], 2: []}
+    for _ in range(repeat):
+        for threads in (1, 2):
+            numba.set_num_threads(threads)
+            t0 = time.perf_counter()
+            _arithmetic(20_000_000)
+            walls[threads].append(time.perf_counter() - t0)
+    speedup = min(walls[1]) / min(walls[2])
+    print(f"machine: pure-arithmetic numba kernel 1 → 2 threads {speedup:.2f}× "
+          f"(load average {os.getloadavg()[0]:.1f})")
+    return speedup
+
+
+@njit(cache=True, parallel=True)
+def _arithmetic(n):
+    """Eight independent recurrences, one per prange iteration (no memory traffic)."""
+    out = np.zeros(8)
+    for b in prange(8):
+        x, s = 1.0 + b, 0.0
+        for _ in range(n):
+            x = x * 1.0000001 + 1e-9
+            s += 1.0 / x
+        out[b] = s
+    return out
+
+
+def bench_threads(mesh: TetMesh, n_hist: int, ceiling: float, repeat: int = 3) -> None:
     if numba.config.NUMBA_NUM_THREADS < 2:
         print("thread scaling: only one thread available")
         return
@@ -138,10 +179,11 @@ def bench_threads(mesh: TetMesh, n_hist: int, repeat: int = 3) -> None:
             numba.set_num_threads(threads)
             walls[threads].append(simulate(mesh, PLAN, settings, progress=False).wall_s)
     ratios = np.array(walls[1]) / np.array(walls[2])
-    print(f"mesh 1 → 2 threads ({repeat} pairs, wall): 1 thread {min(walls[1]):.2f}–"
-          f"{max(walls[1]):.2f} s, 2 threads {min(walls[2]):.2f}–{max(walls[2]):.2f} s; speed-up "
-          f"{min(walls[1]) / min(walls[2]):.2f}× (best/best), pairs {ratios.min():.2f}–"
-          f"{ratios.max():.2f}×")
+    speedup = min(walls[1]) / min(walls[2])
+    print(f"  mesh transport 1 → 2 threads ({repeat} pairs, wall): 1 thread {min(walls[1]):.2f}–"
+          f"{max(walls[1]):.2f} s, 2 threads {min(walls[2]):.2f}–{max(walls[2]):.2f} s; "
+          f"speed-up {speedup:.2f}× (best/best; pairs {ratios.min():.2f}–{ratios.max():.2f}×), "
+          f"{speedup / ceiling:.0%} of the machine's {ceiling:.2f}×")
 
 
 def bench_uncertainty(mesh: TetMesh, image: Image, n_hist: int) -> None:
@@ -168,12 +210,17 @@ def bench_uncertainty(mesh: TetMesh, image: Image, n_hist: int) -> None:
 
 
 if __name__ == "__main__":
-    n_cubes = int(sys.argv[1]) if len(sys.argv) > 1 else 40
+    sizes = [int(a) for a in (sys.argv[1] if len(sys.argv) > 1 else "10,20,30,40").split(",")]
     n_hist = int(float(sys.argv[2])) if len(sys.argv) > 2 else 100_000
-    mesh, image = box(n_cubes)
-    print(f"water box 200 mm, {n_cubes}³ cubes: {mesh.n_tets} tets / {image.grid.n_voxels} voxels;"
-          f" {numba.config.NUMBA_NUM_THREADS} threads available")
-    bench_walk(mesh)
-    bench_transport(mesh, image, n_hist)
-    bench_threads(mesh, n_hist)
+    print(f"{numba.config.NUMBA_NUM_THREADS} threads available, "
+          f"load average {os.getloadavg()[0]:.1f}")
+    ceiling = bench_ceiling()
+    for n_cubes in sizes:
+        mesh, image = box(n_cubes)
+        main = n_cubes == sizes[-1]
+        print(f"water box 200 mm, {n_cubes}³ cubes: {mesh.n_tets} tets / {image.grid.n_voxels} "
+              f"voxels")
+        bench_walk(mesh, all_orders=main)
+        bench_transport(mesh, image, n_hist)
+        bench_threads(mesh, n_hist, ceiling)
     bench_uncertainty(mesh, image, n_hist // 2)

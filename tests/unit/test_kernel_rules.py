@@ -1,10 +1,11 @@
-"""Kernel modules import only math, numpy, numba and tetdose's kernel-safe modules (STYLE.md)."""
+"""Kernel modules import only math, numpy, numba (llvmlite for intrinsics) and tetdose's kernel-safe
+modules (STYLE.md)."""
 
 import ast
 from pathlib import Path
 
-ALLOWED = {"math", "numpy", "numba", "typing", "tetdose._constants", "tetdose._typing",
-           "tetdose._random"}
+ALLOWED = {"math", "numpy", "numba", "llvmlite", "typing", "tetdose._constants", "tetdose._typing",
+           "tetdose._random", "tetdose._jit"}
 SRC = Path(__file__).resolve().parents[2] / "src" / "tetdose"
 
 

@@ -213,3 +213,65 @@ def test_voxel_traversal_matches_brute_force(xs):
         out, *_ = flight_voxel(g, xs, 1.0, x, y, z, *d, 1e300, True, tally)
         assert out == ESCAPES
         np.testing.assert_allclose(tally * MM_PER_CM / mu_en, ref, atol=1e-9)
+
+
+def test_entry_through_every_boundary_vertex_from_six_sides():
+    """Rays aimed exactly at boundary vertices (on the faces' and the entry grid's planes) along
+    ±x, ±y, ±z enter at that vertex: the entry grid lists every face in every cell it touches."""
+    mesh = box_mesh((4, 4, 4), (40.0, 40.0, 40.0), origin_mm=(-20.0, -20.0, -20.0))
+    g = mesh_geometry(mesh, np.ones(mesh.n_points), np.zeros(mesh.n_tets, dtype=np.intp))
+    assert g.grid_n[0] > 1
+    pts = mesh.points_mm
+    for axis, sign in itertools.product(range(3), (1.0, -1.0)):
+        d = np.zeros(3)
+        d[axis] = sign
+        face = pts[np.isclose(pts[:, axis], -20.0 * sign)]  # the side the rays enter through
+        for v in face:
+            k, x, y, z, _ = enter_mesh(g, *(v - 30.0 * d), *d)
+            assert k >= 0
+            np.testing.assert_allclose((x, y, z), v, atol=1e-9)
+
+
+def test_prefetch_changes_no_value():
+    """The prefetch intrinsic compiles for rows of 1-, 2- and 3-d arrays of several dtypes and
+    leaves results untouched (it only hints the cache)."""
+    from numba import njit
+
+    from tetdose.transport._prefetch import prefetch
+
+    @njit
+    def prefetch_all_rows(a):
+        for i in range(a.shape[0]):
+            prefetch(a, i)
+        return a.sum()
+
+    @njit
+    def plain_sum(a):
+        return a.sum()
+
+    rng = np.random.default_rng(0)
+    for a in (rng.normal(size=17), rng.normal(size=(9, 4)), rng.normal(size=(5, 4, 4)),
+              rng.integers(0, 9, size=(7, 4)).astype(np.int32)):
+        before = a.copy()
+        assert prefetch_all_rows(a) == plain_sum(a)
+        np.testing.assert_array_equal(a, before)
+
+
+def test_kernels_refuse_to_allocate():
+    """``@kernel`` functions run without numba's reference counting, so an allocation inside one
+    must fail at compile time rather than leak or crash at run time."""
+    from numba.core.errors import NumbaError
+
+    from tetdose._jit import kernel
+
+    @kernel
+    def borrows(a):
+        return a[0] + a[-1]
+
+    @kernel
+    def allocates(n):
+        return np.zeros(n).sum()
+
+    assert borrows(np.arange(4.0)) == 3.0
+    with pytest.raises(NumbaError):
+        allocates(3)

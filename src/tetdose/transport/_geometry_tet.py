@@ -25,8 +25,10 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from tetdose._jit import kernel
 from tetdose._typing import FloatArray, IntArray
-from tetdose.transport._geometry_voxel import box_interval
+from tetdose.transport._geometry_voxel import box_interval, dda_axis
+from tetdose.transport._prefetch import prefetch
 
 #: Zero-length hops allowed in a row before the photon is relocated.
 MAX_ZERO_STEPS = 64
@@ -93,7 +95,25 @@ def next_tet(g, k, f):
     return nxt >> 2, nxt & 3
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
+def prefetch_neighbours(g, k, entry, tally):
+    """Prefetch what a crossing into each neighbour of tet ``k`` (but ``entry``) will read.
+
+    Planes and link always; density, material and the tally row too when ``tally`` is non-empty.
+    """
+    for f in range(4):
+        nxt = g.link[k, f]
+        if f != entry and nxt >= 0:
+            kk = nxt >> 2
+            prefetch(g.planes, kk)
+            prefetch(g.link, kk)
+            if tally.shape[0] > 0:
+                prefetch(g.density, kk)
+                prefetch(g.material, kk)
+                prefetch(tally, kk)
+
+
+@kernel
 def contains(g, k, x, y, z, tol_mm):
     """True if (x, y, z) lies inside tet ``k`` up to ``tol_mm`` outside any face plane."""
     for f in range(4):
@@ -104,7 +124,7 @@ def contains(g, k, x, y, z, tol_mm):
     return True
 
 
-@njit(cache=True)
+@kernel
 def locate(g, x, y, z, tol_mm):
     """Brute-force point location: the first tet containing (x, y, z), or −1 (rare fallback)."""
     for k in range(g.tets.shape[0]):
@@ -113,13 +133,13 @@ def locate(g, x, y, z, tol_mm):
     return -1
 
 
-@njit(cache=True)
+@kernel
 def relocate(g, x, y, z, u, v, w, nudge_mm):
     """Tet holding the point nudged by ``nudge_mm`` along the ray (−1: it left the mesh)."""
     return locate(g, x + nudge_mm * u, y + nudge_mm * v, z + nudge_mm * w, nudge_mm)
 
 
-@njit(cache=True)
+@kernel
 def _ray_triangle(g, b, x, y, z, u, v, w):
     """Möller–Trumbore distance to boundary face ``b`` (inf if missed) and n·d of the face."""
     k = g.bnd_tet[b]
@@ -146,7 +166,7 @@ def _ray_triangle(g, b, x, y, z, u, v, w):
     return (e2x * qx + e2y * qy + e2z * qz) * inv, cos_n
 
 
-@njit(cache=True)
+@kernel
 def first_boundary_hit(g, x, y, z, u, v, w):
     """(boundary face id, distance [mm], n·d) of the first boundary face along the ray, t ≥ 0.
 
@@ -158,48 +178,37 @@ def first_boundary_hit(g, x, y, z, u, v, w):
     if t0 > t1:
         return best_b, best_t, best_cos
     t = max(t0, 0.0)
-    idx = np.empty(3, np.intp)
-    step = np.empty(3, np.intp)
-    t_next = np.empty(3)
-    t_delta = np.empty(3)
-    d = (u, v, w)
-    p = (x, y, z)
-    for a in range(3):
-        q = (p[a] + t * d[a] - g.grid_lo[a]) / g.grid_cell[a]
-        idx[a] = min(max(int(np.floor(q)), 0), g.grid_n[a] - 1)
-        if d[a] > 0.0:
-            step[a] = 1
-            t_next[a] = (g.grid_lo[a] + (idx[a] + 1) * g.grid_cell[a] - p[a]) / d[a]
-            t_delta[a] = g.grid_cell[a] / d[a]
-        elif d[a] < 0.0:
-            step[a] = -1
-            t_next[a] = (g.grid_lo[a] + idx[a] * g.grid_cell[a] - p[a]) / d[a]
-            t_delta[a] = -g.grid_cell[a] / d[a]
-        else:
-            step[a] = 0
-            t_next[a] = np.inf
-            t_delta[a] = np.inf
+    lo, cell, n = g.grid_lo, g.grid_cell, g.grid_n
+    i = min(max(int(np.floor((x + t * u - lo[0]) / cell[0])), 0), n[0] - 1)
+    j = min(max(int(np.floor((y + t * v - lo[1]) / cell[1])), 0), n[1] - 1)
+    k = min(max(int(np.floor((z + t * w - lo[2]) / cell[2])), 0), n[2] - 1)
+    si, ti, di = dda_axis(lo[0], cell[0], i, x, u)
+    sj, tj, dj = dda_axis(lo[1], cell[1], j, y, v)
+    sk, tk, dk = dda_axis(lo[2], cell[2], k, z, w)
     while True:
-        c = (idx[2] * g.grid_n[1] + idx[1]) * g.grid_n[0] + idx[0]
+        c = (k * n[1] + j) * n[0] + i
         for s in range(g.cell_start[c], g.cell_start[c + 1]):
             b = g.cell_items[s]
             tb, cb = _ray_triangle(g, b, x, y, z, u, v, w)
-            if tb >= -BARY_TOL * g.grid_cell[0] and tb < best_t:
+            if tb >= -BARY_TOL * cell[0] and tb < best_t:
                 best_b, best_t, best_cos = b, max(tb, 0.0), cb
-        a = 0
-        if t_next[1] < t_next[a]:
-            a = 1
-        if t_next[2] < t_next[a]:
-            a = 2
-        if best_t <= t_next[a] or t_next[a] > t1:
+        t_next = min(ti, tj, tk)
+        if best_t <= t_next or t_next > t1:
             return best_b, best_t, best_cos
-        idx[a] += step[a]
-        if idx[a] < 0 or idx[a] >= g.grid_n[a]:
+        if ti == t_next:
+            i += si
+            ti += di
+        elif tj == t_next:
+            j += sj
+            tj += dj
+        else:
+            k += sk
+            tk += dk
+        if i < 0 or i >= n[0] or j < 0 or j >= n[1] or k < 0 or k >= n[2]:
             return best_b, best_t, best_cos
-        t_next[a] += t_delta[a]
 
 
-@njit(cache=True)
+@kernel
 def walk_to(g, k, x, y, z, u, v, w, length_mm):
     """Tet holding p + length·d, walking from tet ``k`` at p (pure geometry; −1 if it leaves).
 
@@ -225,7 +234,7 @@ def walk_to(g, k, x, y, z, u, v, w, length_mm):
             return -1, relocations
 
 
-@njit(cache=True)
+@kernel
 def enter_mesh(g, x, y, z, u, v, w):
     """Start of a source ray: (tet, x, y, z, relocations); tet −1 if the ray misses the mesh.
 

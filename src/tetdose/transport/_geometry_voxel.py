@@ -12,8 +12,8 @@ axis follows with a zero-length step). Entry into the grid uses the slab method
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
 
+from tetdose._jit import kernel
 from tetdose._typing import FloatArray, IntArray
 
 
@@ -27,7 +27,7 @@ class VoxelGeometry(NamedTuple):
     material: IntArray  # (nx·ny·nz,) material index per flat voxel id
 
 
-@njit(cache=True)
+@kernel
 def box_interval(lo, cell, n, x, y, z, u, v, w):
     """Slab method: (t_enter, t_exit) of the ray in the box lo … lo + n·cell (empty: t0 > t1)."""
     t0 = -np.inf
@@ -46,7 +46,7 @@ def box_interval(lo, cell, n, x, y, z, u, v, w):
     return t0, t1
 
 
-@njit(cache=True)
+@kernel
 def voxel_index(g, x, y, z):
     """Voxel (i, j, k) holding a grid-frame point, clamped into the grid."""
     i = min(max(int(np.floor((x - g.lo[0]) / g.cell[0])), 0), g.n[0] - 1)
@@ -55,7 +55,7 @@ def voxel_index(g, x, y, z):
     return i, j, k
 
 
-@njit(cache=True)
+@kernel
 def enter_grid(g, x, y, z, u, v, w):
     """Start of a source ray: (inside?, x, y, z) moved to the grid if it starts outside."""
     t0, t1 = box_interval(g.lo, g.cell, g.n, x, y, z, u, v, w)
@@ -65,8 +65,8 @@ def enter_grid(g, x, y, z, u, v, w):
     return True, x + t * u, y + t * v, z + t * w
 
 
-@njit(cache=True)
-def _axis_init(lo, cell, idx, p, d):
+@kernel
+def dda_axis(lo, cell, idx, p, d):
     """(step, t_max, t_delta) of one axis for a ray starting at coordinate p in voxel idx."""
     if d > 0.0:
         return 1, max((lo + (idx + 1) * cell - p) / d, 0.0), cell / d
@@ -75,10 +75,10 @@ def _axis_init(lo, cell, idx, p, d):
     return 0, np.inf, np.inf
 
 
-@njit(cache=True)
+@kernel
 def dda_init(g, i, j, k, x, y, z, u, v, w):
     """Amanatides–Woo set-up: (sx, sy, sz, tx, ty, tz, dx, dy, dz) from a point in voxel ijk."""
-    sx, tx, dx = _axis_init(g.lo[0], g.cell[0], i, x, u)
-    sy, ty, dy = _axis_init(g.lo[1], g.cell[1], j, y, v)
-    sz, tz, dz = _axis_init(g.lo[2], g.cell[2], k, z, w)
+    sx, tx, dx = dda_axis(g.lo[0], g.cell[0], i, x, u)
+    sy, ty, dy = dda_axis(g.lo[1], g.cell[1], j, y, v)
+    sz, tz, dz = dda_axis(g.lo[2], g.cell[2], k, z, w)
     return sx, sy, sz, tx, ty, tz, dx, dy, dz

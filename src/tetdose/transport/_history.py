@@ -25,12 +25,14 @@ import math
 from numba import njit
 
 from tetdose._constants import MM_PER_CM
+from tetdose._jit import kernel
 from tetdose._random import next_uniform
 from tetdose.transport._geometry_tet import (
     MAX_ZERO_STEPS,
     density_at,
     exit_face,
     next_tet,
+    prefetch_neighbours,
     relocate,
 )
 from tetdose.transport._geometry_voxel import dda_init, voxel_index
@@ -47,7 +49,7 @@ RELOCATE_NUDGE_MM = 1e-6
 MAX_RELOCATIONS = 4
 
 
-@njit(cache=True)
+@kernel
 def flight_mesh(g, xs, e, k, entry, x, y, z, u, v, w, tau, track, tally, counts):
     """Move a photon to its next interaction: (outcome, tet, x, y, z).
 
@@ -69,6 +71,7 @@ def flight_mesh(g, xs, e, k, entry, x, y, z, u, v, w, tau, track, tally, counts)
             need = tau * MM_PER_CM / mu
             kerma = e * mu_en / MM_PER_CM
             m_prev = m
+        prefetch_neighbours(g, k, entry, tally)
         f, t = exit_face(g, k, x, y, z, u, v, w, entry)
         if f < 0 or zero_steps > MAX_ZERO_STEPS:
             counts[C_RELOCATIONS] += 1
@@ -104,7 +107,7 @@ def flight_mesh(g, xs, e, k, entry, x, y, z, u, v, w, tau, track, tally, counts)
             return ESCAPES, k, x, y, z
 
 
-@njit(cache=True)
+@kernel
 def flight_voxel(g, xs, e, x, y, z, u, v, w, tau, track, tally):
     """Voxel twin of :func:`flight_mesh` (grid frame, constant ρ): (outcome, voxel, x, y, z)."""
     nx, ny, nz = g.n[0], g.n[1], g.n[2]
@@ -144,7 +147,7 @@ def flight_voxel(g, xs, e, x, y, z, u, v, w, tau, track, tally):
             return ESCAPES, -1, x + t_cur * u, y + t_cur * v, z + t_cur * w
 
 
-@njit(cache=True)
+@kernel
 def interaction(xs, m, cell, e, u, v, w, state, cutoff, track, tally, ledger, counts,
                 stack, n_stack, x, y, z):
     """Sample the interaction at (x, y, z) in ``cell``; push a secondary; book the energy.
@@ -182,7 +185,7 @@ def pop_photon(stack, i):
     return r[0], r[1], r[2], r[3], r[4], r[5], r[6], int(r[7])
 
 
-@njit(cache=True)
+@kernel
 def history_mesh(g, xs, e, k, x, y, z, u, v, w, state, cutoff, track, tally,
                  ledger, counts, stack):
     """Follow one source photon (already in tet ``k``) and its secondaries to the end."""
@@ -212,7 +215,7 @@ def history_mesh(g, xs, e, k, x, y, z, u, v, w, state, cutoff, track, tally,
             entry = -1
 
 
-@njit(cache=True)
+@kernel
 def history_voxel(g, xs, e, x, y, z, u, v, w, state, cutoff, track, tally,
                   ledger, counts, stack):
     """Follow one source photon (inside the grid, grid frame) and its secondaries to the end."""

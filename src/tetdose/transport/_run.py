@@ -5,6 +5,12 @@ and counter arrays (no shared ``+=``, numba #7133). History h draws every random
 own stream ``seed_for(seed, stream, h)`` (:mod:`tetdose._random`), so the dose is bitwise the same
 whatever the thread count or the order batches run in.
 
+The batch loops hold the GIL (no ``nogil``): each call already spreads its batches over every
+numba thread, and two calls running at once from Python threads (a multi-threaded dask worker)
+would only oversubscribe the cores — and abort under numba's ``workqueue`` threading layer, which
+is not thread-safe. The per-photon kernels they call are compiled without NRT
+(:mod:`tetdose._jit`).
+
 Source sampling: beam b is chosen with probability w_b/Σw (cumulative ``beam_cdf``), its energy
 from the discrete lines of its spectrum (cumulative ``spec_cdf``). Pencil: fixed point and
 direction. Parallel: uniform on the rectangle ``pos + (ξ₁−½)·fx·e1 + (ξ₂−½)·fy·e2``. Point: cone
@@ -17,6 +23,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit, prange
 
+from tetdose._jit import kernel
 from tetdose._random import next_uniform, seed_for
 from tetdose._typing import FloatArray, IntArray
 from tetdose.transport._geometry_tet import enter_mesh
@@ -52,7 +59,7 @@ class SourceArrays(NamedTuple):
     spec_cdf: FloatArray  # (K,) cumulative line probability within each beam
 
 
-@njit(cache=True)
+@kernel
 def sample_source(src, state):
     """(state, energy, x, y, z, u, v, w) of one source photon."""
     state, xi = next_uniform(state)

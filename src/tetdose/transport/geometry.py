@@ -50,7 +50,9 @@ def _boundary_grid(points: FloatArray, tri: IntArray) -> tuple[FloatArray, ...]:
     cell = (hi - lo) / n
     p = points[tri]
     i0 = np.clip(np.floor((p.min(axis=1) - lo) / cell).astype(np.intp), 0, n - 1)
-    i1 = np.clip(np.floor((p.max(axis=1) - lo) / cell).astype(np.intp), 0, n - 1)
+    # a triangle ending exactly on a cell plane is not listed in the next cell (the traversal
+    # only stops once the best hit lies within the cells visited, so it still finds it)
+    i1 = np.clip(np.ceil((p.max(axis=1) - lo) / cell).astype(np.intp) - 1, i0, n - 1)
     span = (i1 - i0).max(axis=0) + 1
     cells, faces = [], []
     for d in np.ndindex(*span):
