@@ -1,4 +1,5 @@
-"""Benchmark: interaction kernels (samples/s of ``interact``, ``lookup``, Klein–Nishina).
+"""Benchmark: interaction kernels (samples/s of ``interact``, ``transport_coefficients``,
+``lookup``, Klein–Nishina).
 
 Run: ``python bench/bench_physics.py [--samples 2000000]``. Builds the tables (timed), compiles
 the kernels with a small warm-up call (timed separately), then times single-threaded loops of
@@ -15,7 +16,12 @@ import numpy as np
 from numba import njit
 
 from tetdose._random import next_uniform, seed_for
-from tetdose.transport._physics import interact, lookup, sample_klein_nishina
+from tetdose.transport._physics import (
+    interact,
+    lookup,
+    sample_klein_nishina,
+    transport_coefficients,
+)
 from tetdose.transport.xs import build_cross_sections
 
 
@@ -38,6 +44,17 @@ def _loop_lookup(xs, material, energy_mev, n, seed):
         state, r = next_uniform(state)
         _, inc, pe, pair, mu_en = lookup(xs, material, energy_mev * (0.5 + r))
         total += inc + pe + pair + mu_en
+    return total
+
+
+@njit(cache=True)
+def _loop_transport(xs, material, energy_mev, n, seed):
+    state = seed_for(seed, 0, 0)
+    total = 0.0
+    for _ in range(n):
+        state, r = next_uniform(state)
+        mu, mu_en = transport_coefficients(xs, material, energy_mev * (0.5 + r))
+        total += mu + mu_en
     return total
 
 
@@ -79,6 +96,7 @@ def main() -> None:
     t0 = time.perf_counter()
     _loop_interact(xs, 0, 1.0, 10, 0)
     _loop_lookup(xs, 0, 1.0, 10, 0)
+    _loop_transport(xs, 0, 1.0, 10, 0)
     _loop_kn(1.0, 10, 0)
     _loop_rng(10, 0)
     print(f"compile / cache load: {time.perf_counter() - t0:.3f} s")
@@ -88,9 +106,11 @@ def main() -> None:
     for energy in (0.03, 0.1, 1.0, 10.0):
         kn = _rate(_loop_kn, energy, n=n)
         look = _rate(_loop_lookup, xs, 0, energy, n=n)
+        coeff = _rate(_loop_transport, xs, 0, energy, n=n)
         rates = [_rate(_loop_interact, xs, m, energy, n=n) for m in (0, 1)]
         print(f"E = {energy:5.2f} MeV: interact water {rates[0] / 1e6:6.2f} M/s, "
               f"bone {rates[1] / 1e6:6.2f} M/s; lookup {look / 1e6:6.2f} M/s; "
+              f"transport_coefficients {coeff / 1e6:6.2f} M/s; "
               f"Klein–Nishina {kn / 1e6:6.2f} M/s "
               f"({np.float64(rng_rate / kn):.1f}× the RNG cost)")
 

@@ -179,6 +179,8 @@ class _Job(NamedTuple):
 
 
 def _cross_sections(job: _Job, settings: TransportSettings) -> CrossSections:
+    """Read-only tables for ``job``, cached by name: runs with the same materials and cut-off
+    (breathing phases, mesh and voxel engine) share one build."""
     return build_cross_sections(job.names, e_min_mev=min(0.01, settings.energy_cutoff_mev),
                                 e_max_mev=E_MAX_MEV)
 

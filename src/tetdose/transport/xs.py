@@ -24,9 +24,20 @@ of an electron's kinetic energy is T(1 − Y(T)) = ln(1 + aT)/a exactly.
 (mucoeff's own μen/ρ is 1.4 % high at 200 keV and 3.6 % at 10 MeV in water, so it is not used.)
 
 **Grid.** ``build_cross_sections`` samples every material on E_k = exp(ln_e_min + k·d_ln_e),
-k = 0 … n−1, last point e_max. Kernels interpolate log–log between nodes
-(:func:`tetdose.transport._physics.lookup`). Coherent scattering is tabulated but not
-transported (see :mod:`tetdose.transport._physics`).
+k = 0 … n−1, last point e_max. :func:`tetdose.transport._physics.lookup` interpolates each
+process log–log between nodes. The transport kernels read precomputed tables instead:
+ln μ_t (μ_t = μ_incoh + μ_photo + μ_pair) and ln μen, interpolated linearly in ln E (log–log
+interpolation of the total, two exp per call), and the branching fractions μ_incoh/μ_t and
+μ_pair/μ_t, interpolated linearly in ln E (no transcendental function). Between nodes the total
+differs from the sum of per-process log–log interpolations by the interpolation error only:
+(h²/8)·Σ_p w_p (s_p − s̄)² at mid-interval (h = d_ln_e, s_p = d ln μ_p/d ln E, w_p = μ_p/μ_t,
+s̄ = Σ_p w_p s_p). Measured on the 200-per-decade grid: ≤ 5.3e-5 relative (air at 28 keV, where
+photoelectric and incoherent are comparable; ``tests/unit/test_physics_tables.py``), against
+~1e-3 for either interpolation vs the direct evaluation. Coherent scattering is tabulated but
+not transported (see :mod:`tetdose.transport._physics`).
+
+Tables built from material names are cached per (names, e_min, e_max, points_per_decade), and
+all arrays are read-only, so a cached table cannot be altered by a caller.
 """
 
 from __future__ import annotations
@@ -34,7 +45,7 @@ from __future__ import annotations
 import math
 import warnings
 from collections.abc import Sequence
-from functools import cache
+from functools import cache, lru_cache
 from typing import NamedTuple
 
 import numpy as np
@@ -84,12 +95,22 @@ class CrossSections(NamedTuple):
     ``mu_rho_cm2_g[m, k, p]``: μ/ρ [cm²/g] of material m at E_k for process p
     (0 coherent, 1 incoherent, 2 photoelectric, 3 pair). ``mu_en_rho_cm2_g[m, k]``: μen/ρ
     [cm²/g]. E_k = exp(ln_e_min + k·d_ln_e) [MeV].
+
+    Kernel tables on the same nodes (interpolated linearly in ln E by the transport kernels):
+    ``ln_mu_transported[m, k]`` = ln(μ_incoh + μ_photo + μ_pair) [ln cm²/g] (μ_pair = 0 below
+    2mc²), ``ln_mu_en[m, k]`` = ln(μen/ρ) [ln cm²/g], and the branching fractions
+    ``p_incoherent[m, k]`` = μ_incoh/μ_t and ``p_pair[m, k]`` = μ_pair/μ_t [1] (photoelectric is
+    the rest). All arrays are float64, C-contiguous and read-only.
     """
 
     ln_e_min: float
     d_ln_e: float
     mu_rho_cm2_g: np.ndarray
     mu_en_rho_cm2_g: np.ndarray
+    ln_mu_transported: np.ndarray
+    ln_mu_en: np.ndarray
+    p_incoherent: np.ndarray
+    p_pair: np.ndarray
 
 
 @cache
@@ -217,7 +238,7 @@ def _warn_edges(mat: Material, e_min_mev: float, e_max_mev: float) -> None:
                     f"material {mat.name!r}: element Z={int(z)} has an absorption edge at "
                     f"{edge_mev * 1e3:.2f} keV inside the grid; the edge is smeared over one grid "
                     "interval (raise points_per_decade or e_min_mev)",
-                    stacklevel=3,
+                    stacklevel=4,
                 )
 
 
@@ -232,8 +253,29 @@ def build_cross_sections(
     Material index m in the tables is the position in ``material_names``. The grid has
     n = ceil(decades·points_per_decade) + 1 points from e_min_mev to e_max_mev [MeV], uniform in
     ln(E). Raises :class:`PlanError` on unknown names or energies outside 1 keV–50 MeV.
+
+    When every entry is a name, the result is cached by (names, e_min_mev, e_max_mev,
+    points_per_decade): a repeated call returns the same read-only tables (and does not repeat
+    the absorption-edge warnings). :class:`Material` entries always build fresh tables.
     """
-    if not material_names:
+    names = tuple(material_names)
+    if all(isinstance(name, str) for name in names):
+        return _cached_tables(names, e_min_mev, e_max_mev, points_per_decade)
+    return _tables(names, e_min_mev, e_max_mev, points_per_decade)
+
+
+def _frozen(a: FloatArray) -> FloatArray:
+    """``a`` as a read-only, C-contiguous float64 array (copied only when it is not one)."""
+    out = np.ascontiguousarray(a, dtype=np.float64)
+    out.flags.writeable = False
+    return out
+
+
+def _tables(
+    materials: tuple[str | Material, ...], e_min_mev: float, e_max_mev: float,
+    points_per_decade: int,
+) -> CrossSections:
+    if not materials:
         raise PlanError("build_cross_sections needs at least one material")
     if not (_DATA_E_MIN_MEV <= e_min_mev < e_max_mev <= _DATA_E_MAX_MEV):
         raise PlanError(
@@ -246,12 +288,18 @@ def build_cross_sections(
     ln_e_min = math.log(e_min_mev)
     d_ln_e = (math.log(e_max_mev) - ln_e_min) / (n - 1)
     energies = np.exp(ln_e_min + d_ln_e * np.arange(n))
-    mu = np.empty((len(material_names), n, 4))
-    mu_en = np.empty((len(material_names), n))
-    for m, name in enumerate(material_names):
+    mu = np.empty((len(materials), n, 4))
+    mu_en = np.empty((len(materials), n))
+    for m, name in enumerate(materials):
         mat = _resolve(name)
         _warn_edges(mat, e_min_mev, e_max_mev)
         mu[m], mu_en[m] = mass_coefficients(mat, energies)
+    transported = mu[:, :, 1:].sum(axis=2)
     return CrossSections(
-        ln_e_min, d_ln_e, np.ascontiguousarray(mu), np.ascontiguousarray(mu_en)
+        ln_e_min, d_ln_e, _frozen(mu), _frozen(mu_en), _frozen(np.log(transported)),
+        _frozen(np.log(mu_en)), _frozen(mu[:, :, 1] / transported),
+        _frozen(mu[:, :, 3] / transported),
     )
+
+
+_cached_tables = lru_cache(maxsize=32)(_tables)
