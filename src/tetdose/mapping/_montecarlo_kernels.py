@@ -11,6 +11,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from tetdose._jit import kernel
 from tetdose._random import next_uniform, seed_for
 
 
@@ -71,7 +72,7 @@ def overlap_monte_carlo(points_u, tets, nx, ny, nz, n_samples, seed, offsets, vo
         out_count[k] = written
 
 
-@njit(cache=True)
+@kernel
 def _fold_into_tet(s, t, u):
     """Map a uniform point of the unit cube to a uniform point of the unit corner tetrahedron."""
     if s + t > 1.0:

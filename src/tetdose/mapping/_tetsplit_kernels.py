@@ -12,13 +12,15 @@ import math
 
 from numba import njit
 
+from tetdose._jit import kernel
+
 #: Pieces whose volume is below this fraction of the tetrahedron's are dropped (touching contacts).
 _DROP_REL = 1e-13
 _MAX_X = 9
 _MAX_Y = 81
 
 
-@njit(cache=True)
+@kernel
 def _tet_volume(t):
     """|det[b − a, c − a, d − a]| / 6 of a (4, 3) array."""
     ax, ay, az = t[1, 0] - t[0, 0], t[1, 1] - t[0, 1], t[1, 2] - t[0, 2]
@@ -131,7 +133,7 @@ def _slab(src, n_src, axis, lo, hi, out, tmp, cut):
     return n
 
 
-@njit(cache=True)
+@kernel
 def _index_range(lo, hi, n):
     """Voxels [first, last] along an axis that a piece spanning [lo, hi] (index space) can touch."""
     first = max(0, int(math.floor(lo + 0.5)))
