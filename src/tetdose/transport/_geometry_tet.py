@@ -13,6 +13,11 @@ it: both share the face's densities, so only the tally cell of a zero-volume pat
 If a walk stalls (no face ahead, or more than ``MAX_ZERO_STEPS`` zero-length hops), the photon is
 **relocated** by point location of a point nudged along the ray; the caller counts relocations.
 
+**Memory.** A crossing is a dependent load: the next tet's records are known only once this tet's
+exit face is. On entering a tet the walker therefore prefetches the records of the neighbours it
+may enter next (:func:`prefetch_neighbours`), so the next cache miss overlaps this tet's
+arithmetic. Tets are stored in Morton order (:mod:`tetdose.transport.geometry`).
+
 Entry from outside: Möller–Trumbore ray–triangle tests against the boundary faces, accelerated
 by a uniform grid over the mesh's bounding box traversed with Amanatides–Woo (see
 :mod:`tetdose.transport._geometry_voxel`). The first boundary hit tells whether the source point
@@ -40,17 +45,16 @@ class TetGeometry(NamedTuple):
     """Flat arrays describing a tetrahedral mesh for the kernels (all mm, g/cm³).
 
     One crossing reads ``planes[k]`` (128 B, two cache lines), ``link[k]`` and, with physics,
-    ``density[k]`` and ``material[k]``; points and tets serve only the mesh entry.
+    ``density[k]`` and ``material[k]``. The mesh entry reads ``bnd_tri`` (96 B per boundary
+    face: one cache miss per ray–triangle test, not six through tets and points).
     """
 
-    points_mm: FloatArray  # (N, 3)
-    tets: IntArray  # (M, 4)
     planes: FloatArray  # (M, 4, 4) face f: outward unit normal (0:3) and offset n·x (3) [mm]
     link: IntArray  # (M, 4) 4·(tet across face f) + (its local face index); −1 on the boundary
     density: FloatArray  # (M, 4) linear density ρ(x) = g·x + c: (gx, gy, gz [g/cm³/mm], c)
     material: IntArray  # (M,) material index
     bnd_tet: IntArray  # (F,) owner tet of each boundary face
-    bnd_face: IntArray  # (F,) its local face index
+    bnd_tri: FloatArray  # (F, 4, 3) boundary face: vertex a, edges b − a, c − a, outward unit normal
     grid_lo: FloatArray  # (3,) acceleration grid lower corner [mm]
     grid_cell: FloatArray  # (3,) cell size [mm]
     grid_n: IntArray  # (3,) cells per axis
@@ -58,10 +62,12 @@ class TetGeometry(NamedTuple):
     cell_items: IntArray  # boundary face ids per grid cell
 
 
-# Bench (bench_transport.py, 40³-cube box, CPU time): inline="always" 3.8 → 4.9 M crossings/s
-# on the old 7-array layout; planes (M,4,4) + packed link: 9.8 → 12 M/s (z rays), 7.7 M/s for
-# isotropic rays. A branch-less select over all four faces (Yao et al. 2012 style) measured
-# 7.5 M/s and a structure-of-arrays variant 7.1 M/s: numba's scalar code prefers the branches.
+# Layouts measured (bench_transport.py, 384 k-tet box, 1 core): inline="always" 3.8 → 4.9 M
+# crossings/s on the old 7-array layout; planes (M,4,4) + packed link: 9.8 → 12 M/s (z rays),
+# 7.7 M/s for isotropic rays. Slower: a branch-less select over all four faces (Yao et al. 2012
+# style, 7.5 M/s), structure of arrays (7.1), float32 planes in one 128-byte record per tet (no
+# gain once memory-bound, and 2e-5 mm plane error). Neighbour prefetch: ×1.9 on a 48 k-tet mesh
+# (L3-resident), ×1.1–1.2 on 384 k tets (DRAM latency exceeds the per-tet arithmetic).
 @njit(cache=True, inline="always")
 def density_at(g, k, x, y, z):
     """Density [g/cm³] at (x, y, z) [mm] by the linear field of tet ``k``."""
@@ -96,10 +102,11 @@ def next_tet(g, k, f):
 
 
 @njit(cache=True, inline="always")
-def prefetch_neighbours(g, k, entry, tally):
+def prefetch_neighbours(g, k, entry, physics, tally):
     """Prefetch what a crossing into each neighbour of tet ``k`` (but ``entry``) will read.
 
-    Planes and link always; density, material and the tally row too when ``tally`` is non-empty.
+    Planes and link always; density and material too with ``physics``; ``tally[neighbour]``
+    when ``tally`` is not empty (the track-length estimator writes it on every crossing).
     """
     for f in range(4):
         nxt = g.link[k, f]
@@ -107,9 +114,10 @@ def prefetch_neighbours(g, k, entry, tally):
             kk = nxt >> 2
             prefetch(g.planes, kk)
             prefetch(g.link, kk)
-            if tally.shape[0] > 0:
+            if physics:
                 prefetch(g.density, kk)
                 prefetch(g.material, kk)
+            if tally.shape[0] > 0:
                 prefetch(tally, kk)
 
 
@@ -127,7 +135,7 @@ def contains(g, k, x, y, z, tol_mm):
 @kernel
 def locate(g, x, y, z, tol_mm):
     """Brute-force point location: the first tet containing (x, y, z), or −1 (rare fallback)."""
-    for k in range(g.tets.shape[0]):
+    for k in range(g.planes.shape[0]):
         if contains(g, k, x, y, z, tol_mm):
             return k
     return -1
@@ -142,18 +150,13 @@ def relocate(g, x, y, z, u, v, w, nudge_mm):
 @kernel
 def _ray_triangle(g, b, x, y, z, u, v, w):
     """Möller–Trumbore distance to boundary face ``b`` (inf if missed) and n·d of the face."""
-    k = g.bnd_tet[b]
-    f = g.bnd_face[b]
-    # vertices of face f are the tet's vertices other than f
-    ia = g.tets[k, (f + 1) % 4]
-    ib = g.tets[k, (f + 2) % 4]
-    ic = g.tets[k, (f + 3) % 4]
-    ax, ay, az = g.points_mm[ia, 0], g.points_mm[ia, 1], g.points_mm[ia, 2]
-    e1x, e1y, e1z = g.points_mm[ib, 0] - ax, g.points_mm[ib, 1] - ay, g.points_mm[ib, 2] - az
-    e2x, e2y, e2z = g.points_mm[ic, 0] - ax, g.points_mm[ic, 1] - ay, g.points_mm[ic, 2] - az
+    tri = g.bnd_tri[b]
+    ax, ay, az = tri[0, 0], tri[0, 1], tri[0, 2]
+    e1x, e1y, e1z = tri[1, 0], tri[1, 1], tri[1, 2]
+    e2x, e2y, e2z = tri[2, 0], tri[2, 1], tri[2, 2]
     px, py, pz = v * e2z - w * e2y, w * e2x - u * e2z, u * e2y - v * e2x
     det = e1x * px + e1y * py + e1z * pz
-    cos_n = g.planes[k, f, 0] * u + g.planes[k, f, 1] * v + g.planes[k, f, 2] * w
+    cos_n = tri[3, 0] * u + tri[3, 1] * v + tri[3, 2] * w
     if det == 0.0:
         return np.inf, cos_n
     inv = 1.0 / det

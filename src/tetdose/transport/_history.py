@@ -59,6 +59,7 @@ def flight_mesh(g, xs, e, k, entry, x, y, z, u, v, w, tau, track, tally, counts)
     """
     m_prev = -1
     mu = need = kerma = 0.0
+    written = tally if track else tally[:0]  # tally cells written on crossings
     zero_steps = 0
     n_reloc = 0
     crossings = 0
@@ -71,7 +72,7 @@ def flight_mesh(g, xs, e, k, entry, x, y, z, u, v, w, tau, track, tally, counts)
             need = tau * MM_PER_CM / mu
             kerma = e * mu_en / MM_PER_CM
             m_prev = m
-        prefetch_neighbours(g, k, entry, tally)
+        prefetch_neighbours(g, k, entry, True, written)
         f, t = exit_face(g, k, x, y, z, u, v, w, entry)
         if f < 0 or zero_steps > MAX_ZERO_STEPS:
             counts[C_RELOCATIONS] += 1

@@ -96,8 +96,11 @@ def mesh_geometry(mesh: TetMesh, density_g_cm3: FloatArray, material: IntArray,
     face_back = np.argmax(mesh.neighbors[nb[k, f]] == order[k][:, None], axis=1)
     link[k, f] = 4 * inv[nb[k, f]] + face_back
     bk, bf = np.nonzero(nb < 0)
-    grid = _boundary_grid(pts, tets[bk[:, None], FACE_VERTICES[bf]])
+    tri = tets[bk[:, None], FACE_VERTICES[bf]]
+    corner = pts[tri[:, 0]]
+    bnd_tri = np.stack([corner, pts[tri[:, 1]] - corner, pts[tri[:, 2]] - corner,
+                        planes[bk, bf, :3]], axis=1)
     c_ = np.ascontiguousarray
-    return TetGeometry(pts, c_(tets), c_(planes), c_(link, dtype=np.intp), c_(density),
+    return TetGeometry(c_(planes), c_(link, dtype=np.intp), c_(density),
                        c_(np.asarray(material)[order], dtype=np.intp), c_(bk, dtype=np.intp),
-                       c_(bf, dtype=np.intp), *grid)
+                       c_(bnd_tri), *_boundary_grid(pts, tri))
