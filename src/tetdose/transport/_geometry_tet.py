@@ -32,7 +32,7 @@ from numba import njit
 
 from tetdose._jit import kernel
 from tetdose._typing import FloatArray, IntArray
-from tetdose.transport._geometry_voxel import box_interval, dda_axis
+from tetdose.transport._geometry_voxel import box_interval, dda_axis, dda_step
 from tetdose.transport._prefetch import prefetch
 
 #: Zero-length hops allowed in a row before the photon is relocated.
@@ -198,16 +198,8 @@ def first_boundary_hit(g, x, y, z, u, v, w):
         t_next = min(ti, tj, tk)
         if best_t <= t_next or t_next > t1:
             return best_b, best_t, best_cos
-        if ti == t_next:
-            i += si
-            ti += di
-        elif tj == t_next:
-            j += sj
-            tj += dj
-        else:
-            k += sk
-            tk += dk
-        if i < 0 or i >= n[0] or j < 0 or j >= n[1] or k < 0 or k >= n[2]:
+        i, j, k, ti, tj, tk, inside = dda_step(i, j, k, ti, tj, tk, si, sj, sk, di, dj, dk, n)
+        if not inside:
             return best_b, best_t, best_cos
 
 

@@ -12,6 +12,7 @@ axis follows with a zero-length step). Entry into the grid uses the slab method
 from typing import NamedTuple
 
 import numpy as np
+from numba import njit
 
 from tetdose._jit import kernel
 from tetdose._typing import FloatArray, IntArray
@@ -82,3 +83,24 @@ def dda_init(g, i, j, k, x, y, z, u, v, w):
     sy, ty, dy = dda_axis(g.lo[1], g.cell[1], j, y, v)
     sz, tz, dz = dda_axis(g.lo[2], g.cell[2], k, z, w)
     return sx, sy, sz, tx, ty, tz, dx, dy, dz
+
+
+@njit(cache=True, inline="always")
+def dda_step(i, j, k, ti, tj, tk, si, sj, sk, di, dj, dk, n):
+    """One Amanatides–Woo step: the axis with the nearest boundary (ties: lowest axis) moves.
+
+    Returns (i, j, k, ti, tj, tk, inside): the new cell, its boundary distances, and whether the
+    cell lies in the ``n`` = (nx, ny, nz) grid.
+    """
+    t_next = min(ti, tj, tk)
+    if ti == t_next:
+        i += si
+        ti += di
+    elif tj == t_next:
+        j += sj
+        tj += dj
+    else:
+        k += sk
+        tk += dk
+    inside = 0 <= i < n[0] and 0 <= j < n[1] and 0 <= k < n[2]
+    return i, j, k, ti, tj, tk, inside

@@ -35,7 +35,7 @@ from tetdose.transport._geometry_tet import (
     prefetch_neighbours,
     relocate,
 )
-from tetdose.transport._geometry_voxel import dda_init, voxel_index
+from tetdose.transport._geometry_voxel import dda_init, dda_step, voxel_index
 from tetdose.transport._physics import interact, transport_coefficients
 
 #: Ledger columns and counter columns.
@@ -111,7 +111,7 @@ def flight_mesh(g, xs, e, k, entry, x, y, z, u, v, w, tau, track, tally, counts)
 @kernel
 def flight_voxel(g, xs, e, x, y, z, u, v, w, tau, track, tally):
     """Voxel twin of :func:`flight_mesh` (grid frame, constant ρ): (outcome, voxel, x, y, z)."""
-    nx, ny, nz = g.n[0], g.n[1], g.n[2]
+    nx, ny = g.n[0], g.n[1]
     i, j, k = voxel_index(g, x, y, z)
     sx, sy, sz, tx, ty, tz, dx, dy, dz = dda_init(g, i, j, k, x, y, z, u, v, w)
     t_cur = 0.0
@@ -135,16 +135,8 @@ def flight_voxel(g, xs, e, x, y, z, u, v, w, tau, track, tally):
             tally[vid] += e * mu_en * col / MM_PER_CM
         tau -= mu * col / MM_PER_CM
         t_cur = max(t_next, t_cur)
-        if tx == t_next:
-            i += sx
-            tx += dx
-        elif ty == t_next:
-            j += sy
-            ty += dy
-        else:
-            k += sz
-            tz += dz
-        if i < 0 or i >= nx or j < 0 or j >= ny or k < 0 or k >= nz:
+        i, j, k, tx, ty, tz, inside = dda_step(i, j, k, tx, ty, tz, sx, sy, sz, dx, dy, dz, g.n)
+        if not inside:
             return ESCAPES, -1, x + t_cur * u, y + t_cur * v, z + t_cur * w
 
 

@@ -3,13 +3,15 @@
 Per tet: the four face planes (outward unit normal n_f, offset c_f = n_f·a for a vertex a of the
 face), the packed neighbour link ``4·k' + f'`` (k' the tet across face f, f' the same face's
 index in k'), the linear density ρ(x) = ∇ρ·x + c solved from the four vertex densities, and the
-material. Boundary faces go into a uniform grid (CSR) for the entry ray cast.
+material. Boundary faces (corner, two edges, outward normal) go into a uniform grid (CSR) for
+the entry ray cast.
 
 Tet order: :func:`morton_order` sorts tets along a Z-order (Morton) curve of their centroids
 (21 bits per axis), so tets near in space are near in memory. Meshers emit tets in an order
-unrelated to space. Pure walk on a 384 k-tet box (bench_transport.py, 1 core, CPU time): numbered
-at random 5.4 M crossings/s, after Morton sorting 6.6–7.0; the box's own slice-by-slice order
-(z fastest) gives 7.0 for isotropic and 9.5 for rays along z, the order's best case.
+unrelated to space. Pure walk on a 384 k-tet box, larger than the cache (bench_transport.py,
+1 core, with neighbour prefetch): numbered at random 6.9–7.0 M crossings/s, after Morton sorting
+8.0–8.6; the box's own slice-by-slice order (z fastest) gives 9.4 for isotropic rays and 12.7 for
+rays along z, the order's best case.
 """
 
 from __future__ import annotations
