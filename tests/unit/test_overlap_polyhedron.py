@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from tetdose.mapping import _overlap_kernels as k
+from tetdose.mapping._tetsplit_kernels import overlap_tetsplit
 from tetdose.mapping.overlap import _bbox_counts
 
 CAP = 64
@@ -103,6 +104,9 @@ def run_kernel(u, tets, size, capacity):
     vox, vol, cen = np.empty(n, np.int64), np.empty(n), np.empty((n, 3))
     count = np.zeros(len(tets), dtype=np.int64)
     fallbacks = k.overlap_exact_capped(u, tets, *size, off, vox, vol, cen, count, capacity)
+    assert np.count_nonzero(count < 0) == fallbacks
+    if fallbacks:
+        overlap_tetsplit(u, tets, *size, off, vox, vol, cen, count, np.flatnonzero(count < 0))
     keep = np.concatenate([np.arange(off[t], off[t] + count[t]) for t in range(len(tets))])
     return fallbacks, np.repeat(np.arange(len(tets)), count), vox[keep], vol[keep], cen[keep]
 

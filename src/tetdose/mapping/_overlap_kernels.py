@@ -21,10 +21,12 @@ vertex of each face, apex c at the vertex mean for accuracy): V = Σ det[a−c, 
 is proportional to the voxels it touches, and the rows of F sum to 1 up to round-off.
 
 A polyhedron holds at most ``_CAP`` vertices (a tetrahedron clipped by six planes has ≤ 16; on-
-plane vertices can add zero-length edges). Should a clip overflow, that tetrahedron is redone by
-the older tetrahedra-splitting method (:mod:`._tetsplit_kernels`): cutting a tetrahedron leaves ≤ 3
-tetrahedra (1 vertex kept: corner; 2: wedge; 3: frustum), ≤ 9 after an x slab and ≤ 81 after a
-y slab, z slabs from differences of the moments below consecutive z planes.
+plane vertices can add zero-length edges). Should a clip overflow, ``out_count`` of that
+tetrahedron is −1 and the caller redoes it by the older tetrahedra-splitting method
+(:func:`._tetsplit_kernels.overlap_tetsplit`): cutting a tetrahedron leaves ≤ 3 tetrahedra
+(1 vertex kept: corner; 2: wedge; 3: frustum), ≤ 9 after an x slab and ≤ 81 after a y slab,
+z slabs from differences of the moments below consecutive z planes. That path is a separate
+kernel so that numba compiles it (~40 s) only in the rare run that needs it.
 
 Two entry kernels share the per-tet output layout (one slice per tetrahedron of length given by
 its bounding-box voxel count, ``out_count`` says how much of it is filled): ``overlap_exact``
@@ -39,14 +41,7 @@ import numpy as np
 from numba import njit, prange
 
 from tetdose._jit import kernel
-from tetdose.mapping._tetsplit_kernels import (
-    _DROP_REL,
-    _MAX_X,
-    _MAX_Y,
-    _index_range,
-    _tet_volume,
-    _tets_exact_one,
-)
+from tetdose.mapping._tetsplit_kernels import _DROP_REL, _index_range, _tet_volume
 
 #: Vertex capacity of a polyhedron (a tetrahedron clipped by six planes has at most 16).
 _CAP = 64
@@ -251,15 +246,15 @@ def _poly_exact_one(tet, nx, ny, nz, voxel_out, vol_out, cen_out, start, pos, nb
 # --------------------------------------------------------------------------- tetrahedra splitting
 @njit(cache=True)
 def overlap_exact(points_u, tets, nx, ny, nz, offsets, voxel_out, vol_out, cen_out, out_count):
-    """Exact pairs for every tetrahedron.
+    """Exact pairs for every tetrahedron; returns how many overflowed (``out_count`` −1).
 
     points_u : (N, 3) vertex coordinates in index space; tets : (M, 4) vertex ids;
     offsets : (M + 1,) start of each tetrahedron's slice in the outputs (bounding-box counts);
     voxel_out : flat voxel ids; vol_out : overlap volume (index-space units, i.e. voxels);
     cen_out : (P, 3) centroid of each overlap (index space); out_count : (M,) pairs written.
     """
-    overlap_exact_capped(points_u, tets, nx, ny, nz, offsets, voxel_out, vol_out, cen_out,
-                         out_count, _CAP)
+    return overlap_exact_capped(points_u, tets, nx, ny, nz, offsets, voxel_out, vol_out,
+                                cen_out, out_count, _CAP)
 
 
 @njit(cache=True, parallel=True)
@@ -267,24 +262,19 @@ def overlap_exact_capped(points_u, tets, nx, ny, nz, offsets, voxel_out, vol_out
                          out_count, capacity):
     """:func:`overlap_exact` with polyhedra of at most ``capacity`` vertices.
 
-    Tetrahedra whose clipping overflows are redone by tetrahedra splitting; returns their number
-    (tests pass a small capacity, ≥ 4, to exercise that path).
+    Returns the number of tetrahedra whose clipping overflowed (tests pass a small capacity,
+    ≥ 4, to exercise that path); their ``out_count`` is −1.
     """
     n_tets = tets.shape[0]
     n_blocks = min(n_tets, 64)
-    n_fallback = 0
+    n_overflow = 0
     for b in prange(n_blocks):
         pos = np.empty((3, capacity, 3))
         nbr = np.empty((3, capacity, 3), dtype=np.intp)
         sd = np.empty(capacity)
         remap = np.empty(capacity, dtype=np.intp)
         marks = np.empty((capacity, 3), dtype=np.bool_)
-        xs = np.empty((_MAX_X, 4, 3))
-        ys = np.empty((_MAX_Y, 4, 3))
-        tmp = np.empty((3 + 9, 4, 3))
-        zacc = np.empty((nz + 1, 4))
         tet = np.empty((4, 3))
-        cut = np.empty((4, 3))
         cum = np.empty(4)
         prev = np.empty(4)
         for k in range(b, n_tets, n_blocks):
@@ -294,10 +284,6 @@ def overlap_exact_capped(points_u, tets, nx, ny, nz, offsets, voxel_out, vol_out
             count = _poly_exact_one(tet, nx, ny, nz, voxel_out, vol_out, cen_out, offsets[k],
                                     pos, nbr, sd, remap, marks, cum, prev)
             if count < 0:
-                n_fallback += 1
-                count = _tets_exact_one(tet, nx, ny, nz, voxel_out, vol_out, cen_out, offsets[k],
-                                        xs, ys, tmp, zacc, cut, cum, prev)
+                n_overflow += 1
             out_count[k] = count
-    return n_fallback
-
-
+    return n_overflow

@@ -10,7 +10,8 @@ proliferate, which is why the polyhedron method is the default.
 
 import math
 
-from numba import njit
+import numpy as np
+from numba import njit, prange
 
 from tetdose._jit import kernel
 
@@ -217,3 +218,25 @@ def _tets_exact_one(tet, nx, ny, nz, voxel_out, vol_out, cen_out, start, xs, ys,
     return written
 
 
+@njit(cache=True, parallel=True)
+def overlap_tetsplit(points_u, tets, nx, ny, nz, offsets, voxel_out, vol_out, cen_out, out_count,
+                     which):
+    """Pairs of the tetrahedra ``which`` by tetrahedra splitting, into the layout of
+    :func:`tetdose.mapping._overlap_kernels.overlap_exact` (the polyhedra that overflowed)."""
+    n_blocks = min(which.shape[0], 64)
+    for b in prange(n_blocks):
+        xs = np.empty((_MAX_X, 4, 3))
+        ys = np.empty((_MAX_Y, 4, 3))
+        tmp = np.empty((3 + 9, 4, 3))
+        zacc = np.empty((nz + 1, 4))
+        tet = np.empty((4, 3))
+        cut = np.empty((4, 3))
+        cum = np.empty(4)
+        prev = np.empty(4)
+        for i in range(b, which.shape[0], n_blocks):
+            k = which[i]
+            for v in range(4):
+                for d in range(3):
+                    tet[v, d] = points_u[tets[k, v], d]
+            out_count[k] = _tets_exact_one(tet, nx, ny, nz, voxel_out, vol_out, cen_out,
+                                           offsets[k], xs, ys, tmp, zacc, cut, cum, prev)

@@ -24,7 +24,7 @@ from tqdm.auto import tqdm
 from tetdose._typing import FloatArray, IntArray
 from tetdose.errors import GeometryMismatchError
 from tetdose.image import ImageGrid
-from tetdose.mapping import _montecarlo_kernels, _overlap_kernels
+from tetdose.mapping import _montecarlo_kernels, _overlap_kernels, _tetsplit_kernels
 from tetdose.mesh import TetMesh
 
 METHODS = ("exact", "monte-carlo")
@@ -101,7 +101,10 @@ def compute_overlap(mesh: TetMesh, grid: ImageGrid, *, method: str = "exact",
         voxel, vol, cen = np.empty(n, np.int64), np.empty(n), np.empty((n, 3))
         count = np.zeros(hi - lo, dtype=np.int64)
         if method == "exact":
-            _overlap_kernels.overlap_exact(u, tets, nx, ny, nz, offsets, voxel, vol, cen, count)
+            if _overlap_kernels.overlap_exact(u, tets, nx, ny, nz, offsets, voxel, vol, cen,
+                                              count):
+                _tetsplit_kernels.overlap_tetsplit(u, tets, nx, ny, nz, offsets, voxel, vol,
+                                                   cen, count, np.flatnonzero(count < 0))
         else:
             _montecarlo_kernels.overlap_monte_carlo(u, tets, nx, ny, nz, int(n_samples), int(seed) + lo,
                                         offsets, voxel, vol, cen, count)
