@@ -34,10 +34,12 @@ from tetdose.mesh import TetMesh
 from tetdose.transport._geometry_tet import TetGeometry
 from tetdose.transport._geometry_voxel import VoxelGeometry
 from tetdose.transport._history import N_COUNTS, N_LEDGER
-from tetdose.transport._run import POINT, SourceArrays, run_mesh, run_voxel
+from tetdose.transport._run import run_mesh, run_voxel
+from tetdose.transport._source import SourceArrays
 from tetdose.transport.geometry import mesh_geometry, morton_order
 from tetdose.transport.model import PhotonSource, Plan, TransportSettings
 from tetdose.transport.result import DoseResult
+from tetdose.transport.source import E_MAX_MEV, source_arrays
 from tetdose.transport.xs import (
     DENSITY_CLASS_MATERIALS,
     CrossSections,
@@ -48,13 +50,10 @@ from tetdose.transport.xs import (
 __all__ = ["DoseResult", "PhotonSource", "Plan", "TransportSettings", "mesh_geometry",
            "morton_order", "run_mesh_transport", "run_voxel_transport", "simulate"]
 
-#: Highest photon energy the interaction tables cover [MeV].
-E_MAX_MEV = 20.0
 #: Batches per kernel call and thread (groups keep the progress bar moving).
 BATCH_GROUP_PER_THREAD = 2
 #: The progress bar appears only for runs longer than this [s].
 PROGRESS_DELAY_S = 2.0
-_KINDS = {"pencil": 0, "parallel": 1, "point": POINT}
 
 
 def simulate(geometry: TetMesh | Image, plan: Plan, settings: TransportSettings, *,
@@ -84,31 +83,6 @@ def _assign_materials(mean_density: FloatArray, region: IntArray | None,
     return np.ascontiguousarray(mat.astype(np.intp)), [names[i] for i in used]
 
 
-def _sources(plan: Plan, settings: TransportSettings, to_frame=None) -> SourceArrays:
-    """Flatten the beams (optionally into a grid frame: ``to_frame(points, is_direction)``)."""
-    beams = plan.beams
-    for b in beams:
-        e = np.asarray(b.energies_mev)
-        if e.max() > E_MAX_MEV or e.min() < settings.energy_cutoff_mev:
-            raise PlanError(f"beam energies must lie between the cut-off "
-                            f"{settings.energy_cutoff_mev} MeV and {E_MAX_MEV} MeV, got "
-                            f"{e.min():g}…{e.max():g} MeV")
-    frame = to_frame or (lambda a, _is_dir: a)
-    vec = lambda attr, is_dir: np.ascontiguousarray(  # noqa: E731
-        frame(np.array([getattr(b, attr) for b in beams]), is_dir), dtype=np.float64)
-    w = np.array([b.weight for b in beams])
-    lines = [np.asarray(b.line_weights) / np.sum(b.line_weights) for b in beams]
-    return SourceArrays(
-        kind=np.array([_KINDS[b.kind] for b in beams], dtype=np.intp),
-        pos=vec("position_mm", False), axis=vec("direction", True), e1=vec("e1", True),
-        e2=vec("e2", True), field=np.array([b.field_mm for b in beams], dtype=np.float64),
-        cos_half=np.cos(np.radians([b.half_angle_deg for b in beams])),
-        beam_cdf=np.cumsum(w) / w.sum(),
-        spec_start=np.concatenate([[0], np.cumsum([len(x) for x in lines])]).astype(np.intp),
-        spec_energy=np.concatenate([b.energies_mev for b in beams]).astype(np.float64),
-        spec_cdf=np.concatenate([np.cumsum(x) for x in lines]).astype(np.float64))
-
-
 def _mesh_job(mesh: TetMesh, plan: Plan, settings: TransportSettings,
               density_g_cm3: FloatArray | None) -> _Job:
     if density_g_cm3 is None:
@@ -123,7 +97,7 @@ def _mesh_job(mesh: TetMesh, plan: Plan, settings: TransportSettings,
     order = morton_order(mesh.centroids_mm)
     geom = mesh_geometry(mesh, rho, material, order)
     mass_g = mesh.volumes_mm3 * mean_rho / 1000.0
-    return _Job("mesh", geom, names, _sources(plan, settings), mass_g, order, None)
+    return _Job("mesh", geom, names, source_arrays(plan, settings), mass_g, order, None)
 
 
 def _voxel_job(density: Image, plan: Plan, settings: TransportSettings,
@@ -147,7 +121,7 @@ def _voxel_job(density: Image, plan: Plan, settings: TransportSettings,
         return a @ grid.direction if is_dir else grid.to_grid_frame(a)
 
     mass_g = rho * grid.voxel_volume_mm3 / 1000.0
-    return _Job("voxel", geom, names, _sources(plan, settings, to_frame), mass_g, None, grid)
+    return _Job("voxel", geom, names, source_arrays(plan, settings, to_frame), mass_g, None, grid)
 
 
 def run_mesh_transport(mesh: TetMesh, plan: Plan, settings: TransportSettings, *,

@@ -11,21 +11,13 @@ would only oversubscribe the cores — and abort under numba's ``workqueue`` thr
 is not thread-safe. The per-photon kernels they call are compiled without NRT
 (:mod:`tetdose._jit`).
 
-Source sampling: beam b is chosen with probability w_b/Σw (cumulative ``beam_cdf``), its energy
-from the discrete lines of its spectrum (cumulative ``spec_cdf``). Pencil: fixed point and
-direction. Parallel: uniform on the rectangle ``pos + (ξ₁−½)·fx·e1 + (ξ₂−½)·fy·e2``. Point: cone
-about the axis, cos θ uniform on [cos θ_half, 1], φ uniform (isotropic for θ_half = 180°).
+Source sampling lives in :mod:`tetdose.transport._source`.
 """
-
-import math
-from typing import NamedTuple
 
 import numpy as np
 from numba import njit, prange
 
-from tetdose._jit import kernel
-from tetdose._random import next_uniform, seed_for
-from tetdose._typing import FloatArray, IntArray
+from tetdose._random import seed_for
 from tetdose.transport._geometry_tet import enter_mesh
 from tetdose.transport._geometry_voxel import enter_grid
 from tetdose.transport._history import (
@@ -37,62 +29,10 @@ from tetdose.transport._history import (
     history_mesh,
     history_voxel,
 )
+from tetdose.transport._source import sample_source
 
 #: Secondary photon stack depth (pair production adds one; annihilation photons cannot pair).
 STACK_DEPTH = 8
-PENCIL, PARALLEL, POINT = 0, 1, 2
-
-
-class SourceArrays(NamedTuple):
-    """Beams as flat arrays (positions [mm], unit vectors, energies [MeV])."""
-
-    kind: IntArray  # (B,) PENCIL | PARALLEL | POINT
-    pos: FloatArray  # (B, 3)
-    axis: FloatArray  # (B, 3)
-    e1: FloatArray  # (B, 3) field x direction (⊥ axis)
-    e2: FloatArray  # (B, 3) field y direction (axis × e1)
-    field: FloatArray  # (B, 2) parallel field size [mm]
-    cos_half: FloatArray  # (B,) cosine of the cone half angle
-    beam_cdf: FloatArray  # (B,) cumulative beam probability
-    spec_start: IntArray  # (B + 1,) offsets into spec_energy / spec_cdf
-    spec_energy: FloatArray  # (K,) line energies [MeV]
-    spec_cdf: FloatArray  # (K,) cumulative line probability within each beam
-
-
-@kernel
-def sample_source(src, state):
-    """(state, energy, x, y, z, u, v, w) of one source photon."""
-    state, xi = next_uniform(state)
-    b = 0
-    while b < src.beam_cdf.shape[0] - 1 and src.beam_cdf[b] <= xi:
-        b += 1
-    state, xi = next_uniform(state)
-    i = src.spec_start[b]
-    while i < src.spec_start[b + 1] - 1 and src.spec_cdf[i] <= xi:
-        i += 1
-    e = src.spec_energy[i]
-    x, y, z = src.pos[b, 0], src.pos[b, 1], src.pos[b, 2]
-    u, v, w = src.axis[b, 0], src.axis[b, 1], src.axis[b, 2]
-    if src.kind[b] == PARALLEL:
-        state, r1 = next_uniform(state)
-        state, r2 = next_uniform(state)
-        a1 = (r1 - 0.5) * src.field[b, 0]
-        a2 = (r2 - 0.5) * src.field[b, 1]
-        x += a1 * src.e1[b, 0] + a2 * src.e2[b, 0]
-        y += a1 * src.e1[b, 1] + a2 * src.e2[b, 1]
-        z += a1 * src.e1[b, 2] + a2 * src.e2[b, 2]
-    elif src.kind[b] == POINT:
-        state, r1 = next_uniform(state)
-        state, r2 = next_uniform(state)
-        ct = 1.0 - r1 * (1.0 - src.cos_half[b])
-        st = math.sqrt(max(1.0 - ct * ct, 0.0))
-        cp, sp = math.cos(2.0 * math.pi * r2), math.sin(2.0 * math.pi * r2)
-        u = ct * u + st * (cp * src.e1[b, 0] + sp * src.e2[b, 0])
-        v = ct * v + st * (cp * src.e1[b, 1] + sp * src.e2[b, 1])
-        w = ct * w + st * (cp * src.e1[b, 2] + sp * src.e2[b, 2])
-        norm = math.sqrt(u * u + v * v + w * w)
-        u, v, w = u / norm, v / norm, w / norm
-    return state, e, x, y, z, u, v, w
 
 
 @njit(cache=True, parallel=True)

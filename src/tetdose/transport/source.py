@@ -1,0 +1,43 @@
+"""Beams → the flat source arrays the kernels sample (:mod:`tetdose.transport._source`)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from tetdose._typing import FloatArray
+from tetdose.errors import PlanError
+from tetdose.transport._source import PARALLEL, PENCIL, POINT, SourceArrays
+from tetdose.transport.model import Plan, TransportSettings
+
+#: Highest photon energy the interaction tables cover [MeV].
+E_MAX_MEV = 20.0
+_KINDS = {"pencil": PENCIL, "parallel": PARALLEL, "point": POINT}
+
+
+def source_arrays(plan: Plan, settings: TransportSettings,
+                  to_frame: Callable[[FloatArray, bool], FloatArray] | None = None
+                  ) -> SourceArrays:
+    """Flatten the beams (optionally into a grid frame: ``to_frame(points, is_direction)``)."""
+    beams = plan.beams
+    for b in beams:
+        e = np.asarray(b.energies_mev)
+        if e.max() > E_MAX_MEV or e.min() < settings.energy_cutoff_mev:
+            raise PlanError(f"beam energies must lie between the cut-off "
+                            f"{settings.energy_cutoff_mev} MeV and {E_MAX_MEV} MeV, got "
+                            f"{e.min():g}…{e.max():g} MeV")
+    frame = to_frame or (lambda a, _is_dir: a)
+    vec = lambda attr, is_dir: np.ascontiguousarray(  # noqa: E731
+        frame(np.array([getattr(b, attr) for b in beams]), is_dir), dtype=np.float64)
+    w = np.array([b.weight for b in beams])
+    lines = [np.asarray(b.line_weights) / np.sum(b.line_weights) for b in beams]
+    return SourceArrays(
+        kind=np.array([_KINDS[b.kind] for b in beams], dtype=np.intp),
+        pos=vec("position_mm", False), axis=vec("direction", True), e1=vec("e1", True),
+        e2=vec("e2", True), field=np.array([b.field_mm for b in beams], dtype=np.float64),
+        cos_half=np.cos(np.radians([b.half_angle_deg for b in beams])),
+        beam_cdf=np.cumsum(w) / w.sum(),
+        spec_start=np.concatenate([[0], np.cumsum([len(x) for x in lines])]).astype(np.intp),
+        spec_energy=np.concatenate([b.energies_mev for b in beams]).astype(np.float64),
+        spec_cdf=np.concatenate([np.cumsum(x) for x in lines]).astype(np.float64))
