@@ -18,9 +18,10 @@ from tetdose.image import Image, ImageGrid
 from tetdose.mesh import TetMesh
 from tetdose.transport import mesh_geometry, morton_order
 from tetdose.transport._geometry_tet import enter_mesh, exit_face
-from tetdose.transport._geometry_voxel import VoxelGeometry, enter_grid
+from tetdose.transport._geometry_voxel import VoxelGeometry, enter_grid, voxel_index
 from tetdose.transport._history import C_CROSSINGS, ESCAPES, N_COUNTS, flight_mesh, flight_voxel
 from tetdose.transport._physics import transport_coefficients
+from tetdose.transport.world import voxel_world
 from tetdose.transport.xs import build_cross_sections
 
 import helpers
@@ -210,7 +211,10 @@ def test_voxel_traversal_matches_brute_force(xs):
             assert ref.sum() == pytest.approx(0.0, abs=1e-9)
             continue
         tally = np.zeros(grid.n_voxels)
-        out, *_ = flight_voxel(g, xs, 1.0, x, y, z, *d, 1e300, True, tally)
+        i, j, k = voxel_index(g, x, y, z)
+        vid = (k * n[1] + j) * n[0] + i
+        out, *_ = flight_voxel(voxel_world(g), xs, 1.0, vid, x, y, z, *d, 1e300, -1e-9, True,
+                               tally, np.zeros(N_COUNTS, np.int64))
         assert out == ESCAPES
         np.testing.assert_allclose(tally * MM_PER_CM / mu_en, ref, atol=1e-9)
 

@@ -28,9 +28,10 @@ from tetdose.transport import (
     simulate,
 )
 from tetdose.transport._geometry_tet import enter_mesh
-from tetdose.transport._geometry_voxel import VoxelGeometry, enter_grid
+from tetdose.transport._geometry_voxel import VoxelGeometry, enter_grid, voxel_index
 from tetdose.transport._history import ESCAPES, INTERACTS, N_COUNTS, flight_mesh, flight_voxel
 from tetdose.transport._physics import transport_coefficients
+from tetdose.transport.world import voxel_world
 from tetdose.transport.xs import build_cross_sections
 
 REPO = Path(__file__).resolve().parents[2]
@@ -96,8 +97,8 @@ def test_uncollided_fraction_is_exp_minus_mu_l(xs, geometry):
         tally, counts = np.zeros(mesh.n_tets), np.zeros(N_COUNTS, np.int64)
 
         def flight(tau):
-            o, _, _, _, zz = flight_mesh(g, xs, 1.0, k, -1, x, y, z, 0, 0, 1.0, tau, False,
-                                         tally, counts)
+            o, _, _, _, zz, _ = flight_mesh(g, xs, 1.0, k, -1, x, y, z, 0, 0, 1.0, tau, False,
+                                            tally, counts)
             return o, zz
     else:
         grid = box_grid(n, (30.0, 30.0, length_mm), (-15.0, -15.0, 0.0))
@@ -105,10 +106,13 @@ def test_uncollided_fraction_is_exp_minus_mu_l(xs, geometry):
                           np.ones(grid.n_voxels), np.zeros(grid.n_voxels, np.intp))
         q = grid.to_grid_frame(np.array([0.1, 0.2, -10.0]))
         _, x, y, z = enter_grid(g, *q, 0.0, 0.0, 1.0)
-        tally = np.zeros(grid.n_voxels)
+        tally, counts = np.zeros(grid.n_voxels), np.zeros(N_COUNTS, np.int64)
+        i, j, kk = voxel_index(g, x, y, z)
+        wg, vid = voxel_world(g), (kk * n[1] + j) * n[0] + i
 
         def flight(tau):
-            o, _, _, _, zz = flight_voxel(g, xs, 1.0, x, y, z, 0, 0, 1.0, tau, False, tally)
+            o, _, _, _, zz, _ = flight_voxel(wg, xs, 1.0, vid, x, y, z, 0, 0, 1.0, tau, -1e-9,
+                                             False, tally, counts)
             return o, zz
     out, _ = _first_flights(flight, n_hist)
     p = math.exp(-WATER_MU_RHO_1MEV * length_mm / 10.0)
@@ -125,7 +129,7 @@ def test_linear_density_free_paths_are_exact(xs):
     k, x, y, z, _ = enter_mesh(g, 0.3, 0.1, -5.0, 0.0, 0.0, 1.0)
     tally, counts = np.zeros(mesh.n_tets), np.zeros(N_COUNTS, np.int64)
     out, depth = _first_flights(lambda tau: flight_mesh(
-        g, xs, 1.0, k, -1, x, y, z, 0, 0, 1.0, tau, False, tally, counts)[::4], n_hist)
+        g, xs, 1.0, k, -1, x, y, z, 0, 0, 1.0, tau, False, tally, counts)[:5:4], n_hist)
     mu = transport_coefficients(xs, 0, 1.0)[0]
     slope = (rho1 - rho0) / length_mm
 

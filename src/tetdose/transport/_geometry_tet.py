@@ -148,7 +148,7 @@ def relocate(g, x, y, z, u, v, w, nudge_mm):
 
 
 @kernel
-def _ray_triangle(g, b, x, y, z, u, v, w):
+def ray_triangle(g, b, x, y, z, u, v, w):
     """Möller–Trumbore distance to boundary face ``b`` (inf if missed) and n·d of the face."""
     tri = g.bnd_tri[b]
     ax, ay, az = tri[0, 0], tri[0, 1], tri[0, 2]
@@ -170,11 +170,14 @@ def _ray_triangle(g, b, x, y, z, u, v, w):
 
 
 @kernel
-def first_boundary_hit(g, x, y, z, u, v, w):
-    """(boundary face id, distance [mm], n·d) of the first boundary face along the ray, t ≥ 0.
+def first_boundary_hit(g, x, y, z, u, v, w, entering_only, t_min):
+    """(boundary face id, distance [mm], n·d) of the first boundary face along the ray.
 
-    Walks the acceleration grid cell by cell (Amanatides–Woo) and stops as soon as the best hit
-    lies within the cells already visited. Returns face −1 if the ray misses the mesh.
+    Faces hit at distances ≤ ``t_min`` are skipped (``t_min`` slightly negative: hits a rounding
+    error behind the start count). With ``entering_only`` only faces the ray enters through
+    (n·d < 0) count: the re-entry of a photon that left the mesh. Walks the acceleration grid
+    cell by cell (Amanatides–Woo) and stops as soon as the best hit lies within the cells
+    already visited. Returns face −1 if the ray misses the mesh.
     """
     t0, t1 = box_interval(g.grid_lo, g.grid_cell, g.grid_n, x, y, z, u, v, w)
     best_b, best_t, best_cos = -1, np.inf, 0.0
@@ -192,8 +195,8 @@ def first_boundary_hit(g, x, y, z, u, v, w):
         c = (k * n[1] + j) * n[0] + i
         for s in range(g.cell_start[c], g.cell_start[c + 1]):
             b = g.cell_items[s]
-            tb, cb = _ray_triangle(g, b, x, y, z, u, v, w)
-            if tb >= -BARY_TOL * cell[0] and tb < best_t:
+            tb, cb = ray_triangle(g, b, x, y, z, u, v, w)
+            if tb > t_min and tb < best_t and (cb < 0.0 or not entering_only):
                 best_b, best_t, best_cos = b, max(tb, 0.0), cb
         t_next = min(ti, tj, tk)
         if best_t <= t_next or t_next > t1:
@@ -235,7 +238,7 @@ def enter_mesh(g, x, y, z, u, v, w):
 
     Outside the mesh is vacuum: a ray from an outside point moves to its first boundary hit.
     """
-    b, t, cos_n = first_boundary_hit(g, x, y, z, u, v, w)
+    b, t, cos_n = first_boundary_hit(g, x, y, z, u, v, w, False, -BARY_TOL * g.grid_cell[0])
     if b < 0:
         return -1, x, y, z, 0
     k = g.bnd_tet[b]

@@ -11,6 +11,11 @@ taken in the cancellation-free form ``s = 2C* / (ρ_p + √(ρ_p² + 2aC*))`` �
 Otherwise τ* −= τ(t_exit) and the photon moves to the neighbour. On voxels the density is
 constant per voxel (a = 0) and the walk is Amanatides–Woo.
 
+One world, one loop (:mod:`tetdose.transport._geometry_world`): a flight moves between the mesh
+and the voxels any number of times, carrying the remaining optical depth τ across every switch
+(τ is continuous; on the mesh it is held as column density and converted back on leaving).
+Mesh-only and voxel-only runs are worlds with one part empty.
+
 Tallies (energy per cell [MeV]): *analog* adds the energy the interaction leaves locally
 (``interact``'s deposited energy: photo-electron, Compton electron, pair kinetic energy — i.e.
 energy transferred, dose = collision kerma when electrons stop locally); *track_length* adds
@@ -31,19 +36,29 @@ from tetdose.transport._geometry_tet import (
     MAX_ZERO_STEPS,
     density_at,
     exit_face,
+    first_boundary_hit,
     next_tet,
     prefetch_neighbours,
     relocate,
 )
-from tetdose.transport._geometry_voxel import dda_init, dda_step, voxel_index
+from tetdose.transport._geometry_voxel import dda_init, dda_step
+from tetdose.transport._geometry_world import (
+    HIT_TOL_MM,
+    cell_material,
+    mesh_hit_in_voxel,
+    voxel_cell_at,
+    voxel_ijk,
+)
 from tetdose.transport._physics import interact, transport_coefficients
 
 #: Ledger columns and counter columns.
 L_SOURCE, L_DEPOSITED, L_ESCAPED, L_CUTOFF, L_LOST = 0, 1, 2, 3, 4
-C_LOST, C_RELOCATIONS, C_STACK_FULL, C_CROSSINGS = 0, 1, 2, 3
-N_LEDGER, N_COUNTS = 5, 4
-#: Flight outcomes.
-INTERACTS, ESCAPES, LOST = 0, 1, 2
+C_LOST, C_RELOCATIONS, C_STACK_FULL, C_CROSSINGS, C_VOXEL_STEPS, C_SWITCHES = 0, 1, 2, 3, 4, 5
+N_LEDGER, N_COUNTS = 5, 6
+#: Flight outcomes (ENTERS: a voxel flight reached the mesh).
+INTERACTS, ESCAPES, LOST, ENTERS = 0, 1, 2, 3
+#: Mesh ↔ voxel switches allowed in one flight before the photon is counted lost.
+MAX_SWITCHES = 10_000
 #: Nudge along the ray before a relocation [mm], and relocations allowed per flight.
 RELOCATE_NUDGE_MM = 1e-6
 MAX_RELOCATIONS = 4
@@ -51,11 +66,12 @@ MAX_RELOCATIONS = 4
 
 @kernel
 def flight_mesh(g, xs, e, k, entry, x, y, z, u, v, w, tau, track, tally, counts):
-    """Move a photon to its next interaction: (outcome, tet, x, y, z).
+    """Move a photon through the mesh to its next interaction: (outcome, tet, x, y, z, τ).
 
     The remaining optical depth is carried as column density ``need = τ·MM_PER_CM/(μ/ρ)``
-    [mm·g/cm³] (converted only when the material changes). Tallies the track-length kerma along
-    the way when ``track`` is true; adds the tets crossed to ``counts[C_CROSSINGS]``.
+    [mm·g/cm³] (converted only when the material changes) and returned as τ when the photon
+    leaves the mesh (ESCAPES, at its exit point). Tallies the track-length kerma along the way
+    when ``track`` is true; adds the tets crossed to ``counts[C_CROSSINGS]``.
     """
     m_prev = -1
     mu = need = kerma = 0.0
@@ -80,7 +96,7 @@ def flight_mesh(g, xs, e, k, entry, x, y, z, u, v, w, tau, track, tally, counts)
             k = relocate(g, x, y, z, u, v, w, RELOCATE_NUDGE_MM)
             if k < 0 or n_reloc > MAX_RELOCATIONS:
                 counts[C_CROSSINGS] += crossings
-                return LOST, k, x, y, z
+                return LOST, k, x, y, z, 0.0
             nudge = RELOCATE_NUDGE_MM
             x, y, z = x + nudge * u, y + nudge * v, z + nudge * w
             entry = -1
@@ -95,7 +111,7 @@ def flight_mesh(g, xs, e, k, entry, x, y, z, u, v, w, tau, track, tally, counts)
             if track:
                 tally[k] += kerma * need
             counts[C_CROSSINGS] += crossings
-            return INTERACTS, k, x + s * u, y + s * v, z + s * w
+            return INTERACTS, k, x + s * u, y + s * v, z + s * w, 0.0
         if track:
             tally[k] += kerma * col_exit
         need -= col_exit
@@ -105,39 +121,101 @@ def flight_mesh(g, xs, e, k, entry, x, y, z, u, v, w, tau, track, tally, counts)
         crossings += 1
         if k < 0:
             counts[C_CROSSINGS] += crossings
-            return ESCAPES, k, x, y, z
+            return ESCAPES, k, x, y, z, need * mu / MM_PER_CM
 
 
 @kernel
-def flight_voxel(g, xs, e, x, y, z, u, v, w, tau, track, tally):
-    """Voxel twin of :func:`flight_mesh` (grid frame, constant ρ): (outcome, voxel, x, y, z)."""
+def flight_voxel(wg, xs, e, vid, x, y, z, u, v, w, tau, t_min, track, tally, counts):
+    """Move a photon through the voxels from (x, y, z) in voxel ``vid``: (outcome, cell, x, y, z, τ).
+
+    Outcomes: INTERACTS (cell = global voxel cell ``M + vid``), ESCAPES (left the grid) or ENTERS
+    (reached the mesh: cell = the tet entered, at the exact hit point, τ left). Entering hits at
+    distances ≤ ``t_min`` [mm] are ignored (the caller's guard against zero-length ping-pong).
+    """
+    g = wg.vox
+    off = wg.tet.planes.shape[0]
     nx, ny = g.n[0], g.n[1]
-    i, j, k = voxel_index(g, x, y, z)
+    lists = wg.tri_n[0] > 0
+    i, j, k = voxel_ijk(g, vid)
     sx, sy, sz, tx, ty, tz, dx, dy, dz = dda_init(g, i, j, k, x, y, z, u, v, w)
     t_cur = 0.0
     m_prev = -1
     mu = mu_en = 0.0
+    steps = 0
     while True:
         vid = (k * ny + j) * nx + i
         m = g.material[vid]
         if m != m_prev:
             mu, mu_en = transport_coefficients(xs, m, e)
             m_prev = m
-        t_next = min(tx, ty, tz)
-        col = g.density[vid] * max(t_next - t_cur, 0.0)
+        t_end = min(tx, ty, tz)
+        b = -1
+        if lists:
+            b, t_hit = mesh_hit_in_voxel(wg, i, j, k, x, y, z, u, v, w,
+                                         max(t_cur - HIT_TOL_MM, t_min), t_end)
+            if b >= 0:
+                t_end = max(t_hit, t_cur)
+        col = g.density[vid] * max(t_end - t_cur, 0.0)
         need = tau * MM_PER_CM / mu
         if need < col:
             t_cur += need / g.density[vid]
             if track:
-                tally[vid] += e * mu_en * need / MM_PER_CM
-            return INTERACTS, vid, x + t_cur * u, y + t_cur * v, z + t_cur * w
+                tally[off + vid] += e * mu_en * need / MM_PER_CM
+            counts[C_VOXEL_STEPS] += steps
+            return INTERACTS, off + vid, x + t_cur * u, y + t_cur * v, z + t_cur * w, 0.0
         if track:
-            tally[vid] += e * mu_en * col / MM_PER_CM
+            tally[off + vid] += e * mu_en * col / MM_PER_CM
         tau -= mu * col / MM_PER_CM
-        t_cur = max(t_next, t_cur)
+        if b >= 0:
+            counts[C_VOXEL_STEPS] += steps
+            return ENTERS, wg.tet.bnd_tet[b], x + t_end * u, y + t_end * v, z + t_end * w, tau
+        t_cur = max(t_end, t_cur)
+        steps += 1
         i, j, k, tx, ty, tz, inside = dda_step(i, j, k, tx, ty, tz, sx, sy, sz, dx, dy, dz, g.n)
         if not inside:
-            return ESCAPES, -1, x + t_cur * u, y + t_cur * v, z + t_cur * w
+            counts[C_VOXEL_STEPS] += steps
+            return ESCAPES, -1, x + t_cur * u, y + t_cur * v, z + t_cur * w, tau
+
+
+@kernel
+def flight(wg, xs, e, cell, x, y, z, u, v, w, tau, track, tally, counts):
+    """Move a photon from global ``cell`` to its next interaction through mesh and voxels:
+    (outcome, cell, x, y, z). τ carries over every switch.
+
+    Leaving the mesh, the photon continues in the voxel holding the exit point or, without a
+    grid, re-enters the mesh at the next entering face along the ray (vacuum in between). A
+    zero-length visit (entered and left at the same point) makes the next re-entry ignore hits
+    closer than :data:`HIT_TOL_MM`, so rounding at an edge cannot ping-pong.
+    """
+    m_tets = wg.tet.planes.shape[0]
+    has_grid = wg.vox.density.shape[0] > 0
+    t_min = -HIT_TOL_MM
+    for _ in range(MAX_SWITCHES):
+        if cell < m_tets:
+            x0, y0, z0 = x, y, z
+            out, k, x, y, z, tau = flight_mesh(wg.tet, xs, e, cell, -1, x, y, z, u, v, w, tau,
+                                               track, tally, counts)
+            if out != ESCAPES:
+                return out, k, x, y, z
+            t_min = HIT_TOL_MM if (x == x0 and y == y0 and z == z0) else -HIT_TOL_MM
+            if has_grid:
+                cell = voxel_cell_at(wg, x, y, z)
+                if cell < 0:
+                    return ESCAPES, -1, x, y, z
+            else:
+                b, t, _ = first_boundary_hit(wg.tet, x, y, z, u, v, w, True, max(t_min, 0.0))
+                if b < 0:
+                    return ESCAPES, -1, x, y, z
+                cell = wg.tet.bnd_tet[b]
+                x, y, z = x + t * u, y + t * v, z + t * w
+        else:
+            out, cell, x, y, z, tau = flight_voxel(wg, xs, e, cell - m_tets, x, y, z, u, v, w,
+                                                   tau, t_min, track, tally, counts)
+            if out != ENTERS:
+                return out, cell, x, y, z
+            t_min = -HIT_TOL_MM
+        counts[C_SWITCHES] += 1
+    return LOST, cell, x, y, z
 
 
 @kernel
@@ -179,15 +257,14 @@ def pop_photon(stack, i):
 
 
 @kernel
-def history_mesh(g, xs, e, k, x, y, z, u, v, w, state, cutoff, track, tally,
-                 ledger, counts, stack):
-    """Follow one source photon (already in tet ``k``) and its secondaries to the end."""
+def history(wg, xs, e, cell, x, y, z, u, v, w, state, cutoff, track, tally, ledger, counts,
+            stack):
+    """Follow one source photon (already in global ``cell``) and its secondaries to the end."""
     n_stack = 0
-    entry = -1
     while True:
         state, xi = next_uniform(state)
-        out, k2, x, y, z = flight_mesh(g, xs, e, k, entry, x, y, z, u, v, w,
-                                       -math.log(1.0 - xi), track, tally, counts)
+        out, cell2, x, y, z = flight(wg, xs, e, cell, x, y, z, u, v, w, -math.log(1.0 - xi),
+                                     track, tally, counts)
         alive = False
         if out == ESCAPES:
             ledger[L_ESCAPED] += e
@@ -195,37 +272,12 @@ def history_mesh(g, xs, e, k, x, y, z, u, v, w, state, cutoff, track, tally,
             ledger[L_LOST] += e
             counts[C_LOST] += 1
         else:
-            k = k2
-            entry = -1
+            cell = cell2
             state, alive, e, u, v, w, n_stack = interaction(
-                xs, g.material[k], k, e, u, v, w, state, cutoff, track, tally, ledger, counts,
-                stack, n_stack, x, y, z)
+                xs, cell_material(wg, cell), cell, e, u, v, w, state, cutoff, track, tally,
+                ledger, counts, stack, n_stack, x, y, z)
         if not alive:
             if n_stack == 0:
                 return state
             n_stack -= 1
-            e, x, y, z, u, v, w, k = pop_photon(stack, n_stack)
-            entry = -1
-
-
-@kernel
-def history_voxel(g, xs, e, x, y, z, u, v, w, state, cutoff, track, tally,
-                  ledger, counts, stack):
-    """Follow one source photon (inside the grid, grid frame) and its secondaries to the end."""
-    n_stack = 0
-    while True:
-        state, xi = next_uniform(state)
-        out, vid, x, y, z = flight_voxel(g, xs, e, x, y, z, u, v, w,
-                                         -math.log(1.0 - xi), track, tally)
-        alive = False
-        if out == ESCAPES:
-            ledger[L_ESCAPED] += e
-        else:
-            state, alive, e, u, v, w, n_stack = interaction(
-                xs, g.material[vid], vid, e, u, v, w, state, cutoff, track, tally, ledger,
-                counts, stack, n_stack, x, y, z)
-        if not alive:
-            if n_stack == 0:
-                return state
-            n_stack -= 1
-            e, x, y, z, u, v, w, _ = pop_photon(stack, n_stack)
+            e, x, y, z, u, v, w, cell = pop_photon(stack, n_stack)

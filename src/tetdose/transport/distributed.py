@@ -1,7 +1,7 @@
 """Transport batches (and phases) spread over a ``dask.distributed`` cluster (extra ``dask``).
 
 The work unit is a group of batches of one geometry: the task calls
-:func:`tetdose.transport.run_batches` on a worker and returns the batch rows. Every history
+:func:`tetdose.transport.job.run_batches` on a worker and returns the batch rows. Every history
 draws from its own counter-based stream ``seed_for(seed, stream, history)`` and every batch row
 is summed in history order, so the rows — and the assembled :class:`DoseResult` — are bitwise
 those of a local :func:`tetdose.transport.simulate` with the same settings, whatever the number
@@ -32,17 +32,17 @@ from tetdose._typing import FloatArray, IntArray
 from tetdose.errors import PlanError
 from tetdose.image import Image
 from tetdose.mesh import TetMesh
-from tetdose.transport import (
+from tetdose.transport.job import (
     PROGRESS_DELAY_S,
-    _assemble,
-    _cross_sections,
-    _Job,
-    _mesh_job,
-    _voxel_job,
+    TransportJob,
+    assemble,
+    build_job,
+    cross_sections,
     run_batches,
 )
 from tetdose.transport.model import Plan, TransportSettings
 from tetdose.transport.result import DoseResult
+from tetdose.transport.world import World, as_world
 
 _Rows = tuple[FloatArray, FloatArray, IntArray]
 
@@ -82,7 +82,7 @@ def dask_client(spec: str) -> Iterator[Any]:
             yield client
 
 
-def _timed_batches(job: _Job, xs: Any, settings: TransportSettings, b_start: int,  # noqa: ANN401
+def _timed_batches(job: TransportJob, xs: Any, settings: TransportSettings, b_start: int,  # noqa: ANN401
                    b_stop: int) -> tuple[_Rows, float, float]:
     """:func:`run_batches` on a worker, with its wall and process CPU times [s].
 
@@ -94,18 +94,19 @@ def _timed_batches(job: _Job, xs: Any, settings: TransportSettings, b_start: int
     return rows, time.perf_counter() - t0, time.process_time() - cpu0
 
 
-def simulate_distributed(client: Any, geometries: TetMesh | Image | Sequence[TetMesh | Image],  # noqa: ANN401
+def simulate_distributed(client: Any,  # noqa: ANN401
+                         geometries: World | TetMesh | Image | Sequence[World | TetMesh | Image],
                          plan: Plan, settings: TransportSettings | Sequence[TransportSettings],
                          *, labels: Image | None = None, batches_per_task: int = 1,
                          progress: bool | None = None) -> DoseResult | list[DoseResult]:
     """Run ``plan`` on one geometry or on each of a list (e.g. breathing phases) on ``client``.
 
-    ``geometries``: a :class:`TetMesh` with point_data ``density`` or a density :class:`Image`
-    (with ``labels``), or a sequence of them. ``settings``: one for all, or one per geometry (a
-    phase's random ``stream``). Returns one :class:`DoseResult`, or a list in the order of
-    ``geometries``; each result's ``wall_s`` is the wall time of the whole call,
-    ``extra["task_s"]`` the summed wall time of its own tasks on the workers and
-    ``extra["task_cpu_s"]`` their workers' process CPU time (single-threaded workers: the tasks'
+    ``geometries``: a :class:`World` (mesh, density image or both), a :class:`TetMesh` with
+    point_data ``density`` or a density :class:`Image` (with ``labels``), or a sequence of them.
+    ``settings``: one for all, or one per geometry (a phase's random ``stream``). Returns one
+    :class:`DoseResult`, or a list in the order of ``geometries``; each result's ``wall_s`` is
+    the wall time of the whole call, ``extra["task_s"]`` the summed wall time of its own tasks on the
+    workers and ``extra["task_cpu_s"]`` their workers' process CPU time (single-threaded workers: the tasks'
     own plus a little event-loop work; with several threads it includes concurrent tasks).
     """
     distributed = _distributed()
@@ -113,7 +114,7 @@ def simulate_distributed(client: Any, geometries: TetMesh | Image | Sequence[Tet
         raise PlanError(f"client must be a dask.distributed.Client, got {type(client).__name__}")
     if int(batches_per_task) < 1:
         raise PlanError(f"batches_per_task must be a positive integer, got {batches_per_task}")
-    single = isinstance(geometries, TetMesh | Image)
+    single = isinstance(geometries, World | TetMesh | Image)
     geoms = [geometries] if single else list(geometries)
     if not geoms:
         raise PlanError("give at least one geometry (mesh or density image)")
@@ -123,20 +124,17 @@ def simulate_distributed(client: Any, geometries: TetMesh | Image | Sequence[Tet
                         "per geometry")
     t0 = time.perf_counter()
     jobs, tasks, scattered, xs_of = [], [], [], {}
+    on_grids = []
     for geom, st in zip(geoms, each, strict=True):
-        if isinstance(geom, TetMesh):
-            job = _mesh_job(geom, plan, st, None)
-        elif isinstance(geom, Image):
-            job = _voxel_job(geom, plan, st, labels)
-        else:
-            raise PlanError(f"geometries must be TetMesh or density Image, got {type(geom)}")
+        job, on_grid = build_job(as_world(geom, labels), plan, st)
+        on_grids.append(on_grid)
         # Scatter lists (a bare NamedTuple goes element-wise) under fresh keys: with content keys
         # (hash=True) equal phases (10 % and 90 % of a symmetric cycle) share one key, and a task
         # was seen cancelled for "lost dependencies" (dask/distributed#4612; hash=False is the
         # workaround). The futures stay referenced in `scattered` until the rows are gathered.
         key = (tuple(job.names), st.energy_cutoff_mev)  # phases share their tables
         if key not in xs_of:
-            xs_of[key] = client.scatter([_cross_sections(job, st)], broadcast=True,
+            xs_of[key] = client.scatter([cross_sections(job, st)], broadcast=True,
                                         hash=False)[0]
         job_f, xs_f = client.scatter([job], broadcast=True, hash=False)[0], xs_of[key]
         scattered.append(job_f)
@@ -153,9 +151,8 @@ def simulate_distributed(client: Any, geometries: TetMesh | Image | Sequence[Tet
     done = [client.gather(fs) for fs in tasks]
     wall = time.perf_counter() - t0
     results = []
-    for job, st, out in zip(jobs, each, done, strict=True):
-        result = _assemble(job, plan, st, [rows for rows, _, _ in out], wall)
-        result.extra["task_s"] = sum(s for _, s, _ in out)
-        result.extra["task_cpu_s"] = sum(c for _, _, c in out)
-        results.append(result)
+    for job, on_grid, st, out in zip(jobs, on_grids, each, done, strict=True):
+        results.append(assemble(job, on_grid, plan, st, [rows for rows, _, _ in out], wall,
+                                {"task_s": sum(s for _, s, _ in out),
+                                 "task_cpu_s": sum(c for _, _, c in out)}))
     return results[0] if single else results

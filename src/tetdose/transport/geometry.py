@@ -16,6 +16,8 @@ rays along z, the order's best case.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from tetdose._typing import FloatArray, IntArray
@@ -69,10 +71,17 @@ def _boundary_grid(points: FloatArray, tri: IntArray) -> tuple[FloatArray, ...]:
 
 
 def mesh_geometry(mesh: TetMesh, density_g_cm3: FloatArray, material: IntArray,
-                  order: IntArray | None = None) -> TetGeometry:
-    """Kernel arrays of a mesh; kernel tet i is ``mesh`` tet ``order[i]`` (default: identity)."""
+                  order: IntArray | None = None,
+                  to_frame: Callable[[FloatArray], FloatArray] | None = None) -> TetGeometry:
+    """Kernel arrays of a mesh; kernel tet i is ``mesh`` tet ``order[i]`` (default: identity).
+
+    ``to_frame`` maps the points into the world's frame (a rigid map: the grid frame of a
+    hybrid world); planes, density gradients and the entry grid are built there.
+    """
     mesh.check_cells(context="for transport")
     pts, tets, nb = mesh.points_mm, mesh.tets, mesh.neighbors
+    if to_frame is not None:
+        pts = to_frame(pts)
     rho = np.asarray(density_g_cm3, dtype=np.float64)
     if rho.shape != (mesh.n_points,) or not np.all(np.isfinite(rho)) or np.any(rho < 0):
         raise MeshError(f"vertex densities must be {mesh.n_points} finite values ≥ 0 g/cm³")
@@ -106,3 +115,12 @@ def mesh_geometry(mesh: TetMesh, density_g_cm3: FloatArray, material: IntArray,
     return TetGeometry(c_(planes), c_(link, dtype=np.intp), c_(density),
                        c_(np.asarray(material)[order], dtype=np.intp), c_(bk, dtype=np.intp),
                        c_(bnd_tri), *_boundary_grid(pts, tri))
+
+
+def empty_mesh_geometry() -> TetGeometry:
+    """The mesh part of a voxel-only world: no tets, no boundary faces, one empty grid cell."""
+    z3 = np.zeros(3)
+    return TetGeometry(np.zeros((0, 4, 4)), np.zeros((0, 4), np.intp), np.zeros((0, 4)),
+                       np.zeros(0, np.intp), np.zeros(0, np.intp), np.zeros((0, 4, 3)), z3,
+                       np.ones(3), np.ones(3, np.intp), np.zeros(2, np.intp),
+                       np.zeros(0, np.intp))

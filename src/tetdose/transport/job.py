@@ -1,0 +1,153 @@
+"""A transport run as a unit of work: world → kernel arrays (:class:`TransportJob`), batch rows
+anywhere (:func:`run_batches`: this process's threads or a dask worker), rows → :class:`DoseResult`.
+
+Every batch row depends only on the seed, the batch index and the inputs (counter-based streams),
+so rows computed anywhere are bitwise the same; :mod:`tetdose.transport.distributed` ships jobs
+to dask workers and assembles with the same :func:`assemble`.
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from typing import NamedTuple
+
+import numba
+import numpy as np
+from tqdm.auto import tqdm
+
+from tetdose._typing import FloatArray, IntArray
+from tetdose.image import ImageGrid
+from tetdose.transport._geometry_world import WorldGeometry
+from tetdose.transport._history import N_COUNTS, N_LEDGER
+from tetdose.transport._run import run_world
+from tetdose.transport._source import SourceArrays
+from tetdose.transport.model import Plan, TransportSettings
+from tetdose.transport.result import DoseResult
+from tetdose.transport.source import E_MAX_MEV, source_arrays
+from tetdose.transport.world import MeshOnGrid, World, world_arrays
+from tetdose.transport.xs import (
+    DENSITY_CLASS_MATERIALS,
+    CrossSections,
+    build_cross_sections,
+    material_for_density,
+)
+
+#: Batches per kernel call and thread (groups keep the progress bar moving).
+BATCH_GROUP_PER_THREAD = 2
+#: The progress bar appears only for runs longer than this [s].
+PROGRESS_DELAY_S = 2.0
+
+Rows = tuple[FloatArray, FloatArray, IntArray]
+
+
+class TransportJob(NamedTuple):
+    """Everything a batch run needs (picklable, for dask workers too)."""
+
+    kind: str  # "mesh" | "voxel" | "hybrid"
+    geom: WorldGeometry
+    names: list[str]  # material names, by material index
+    src: SourceArrays  # in the world's frame
+    mass_g: FloatArray  # (M + V,) cell masses, mesh order then voxels [g]
+    order: IntArray | None  # kernel tet i is mesh tet order[i]
+    n_tets: int
+    grid: ImageGrid | None
+
+
+def assign_materials(mean_density_g_cm3: FloatArray, region: IntArray | None,
+                     plan: Plan) -> tuple[IntArray, list[str]]:
+    """Material index per cell and the material names used: region label → ``plan.materials``,
+    any other cell its density class (:func:`tetdose.transport.xs.material_for_density`)."""
+    names = list(DENSITY_CLASS_MATERIALS)
+    mat = material_for_density(mean_density_g_cm3).astype(np.intp)
+    if plan.materials and region is None:
+        warnings.warn("plan [materials] given but the geometry has no region labels; "
+                      "every cell gets its density-class material", stacklevel=4)
+    elif region is not None:
+        for label, name in plan.materials.items():
+            if name not in names:
+                names.append(name)
+            mat[region == label] = names.index(name)
+    used, mat = np.unique(mat, return_inverse=True)
+    return np.ascontiguousarray(mat.astype(np.intp)), [names[i] for i in used]
+
+
+def build_job(world: World, plan: Plan, settings: TransportSettings
+              ) -> tuple[TransportJob, MeshOnGrid | None]:
+    """Kernel arrays of ``world`` and the mesh-on-grid overlap pairs (hybrid worlds, else None)."""
+    n_cells = ((0 if world.mesh is None else world.mesh.n_tets)
+               + (0 if world.grid is None else world.grid.n_voxels))
+    settings.check_tally_size(n_cells)
+    arrays = world_arrays(world, lambda rho, region: assign_materials(rho, region, plan))
+    grid = world.grid
+    to_frame = None
+    if grid is not None:
+        def to_frame(a: FloatArray, is_dir: bool) -> FloatArray:
+            return a @ grid.direction if is_dir else grid.to_grid_frame(a)
+    n_tets = 0 if world.mesh is None else world.mesh.n_tets
+    job = TransportJob(world.kind, arrays.geometry, arrays.material_names,
+                       source_arrays(plan, settings, to_frame), arrays.mass_g, arrays.order,
+                       n_tets, grid)
+    return job, arrays.on_grid
+
+
+def cross_sections(job: TransportJob, settings: TransportSettings) -> CrossSections:
+    """Read-only tables for ``job``, cached by name: runs with the same materials and cut-off
+    (breathing phases, mesh and voxel engine) share one build."""
+    return build_cross_sections(job.names, e_min_mev=min(0.01, settings.energy_cutoff_mev),
+                                e_max_mev=E_MAX_MEV)
+
+
+def run_batches(job: TransportJob, xs: CrossSections, settings: TransportSettings,
+                b_start: int, b_stop: int) -> Rows:
+    """Rows ``b_start … b_stop−1`` of (energy [MeV], ledger [MeV], counters), kernel cell order."""
+    n = b_stop - b_start
+    energy = np.zeros((n, len(job.mass_g)))
+    ledger = np.zeros((n, N_LEDGER))
+    counts = np.zeros((n, N_COUNTS), dtype=np.int64)
+    run_world(*job.geom, xs, job.src, settings.seed, settings.stream, settings.n_histories,
+              settings.n_batches, b_start, b_stop, settings.energy_cutoff_mev,
+              settings.estimator == "track_length", energy, ledger, counts)
+    return energy, ledger, counts
+
+
+def execute(job: TransportJob, on_grid: MeshOnGrid | None, plan: Plan,
+            settings: TransportSettings, progress: bool | None) -> DoseResult:
+    """Run all batches here in groups (so the progress bar moves) and assemble the result."""
+    xs = cross_sections(job, settings)
+    nb = settings.n_batches
+    group = BATCH_GROUP_PER_THREAD * max(1, numba.get_num_threads())
+    rows = []
+    t0, cpu0 = time.perf_counter(), time.process_time()
+    with tqdm(total=nb, unit="batch", disable=None if progress is None else not progress,
+              desc=f"{job.kind} transport", delay=PROGRESS_DELAY_S) as bar:
+        for b0 in range(0, nb, group):
+            b1 = min(nb, b0 + group)
+            rows.append(run_batches(job, xs, settings, b0, b1))
+            bar.update(b1 - b0)
+    return assemble(job, on_grid, plan, settings, rows, time.perf_counter() - t0,
+                    {"cpu_s": time.process_time() - cpu0})
+
+
+def assemble(job: TransportJob, on_grid: MeshOnGrid | None, plan: Plan,
+             settings: TransportSettings, rows: list[Rows], wall_s: float,
+             extra: dict[str, object] | None = None) -> DoseResult:
+    """DoseResult from batch rows in batch order (tets moved back to mesh order)."""
+    from tetdose import __version__
+
+    energy = np.concatenate([r[0] for r in rows])
+    if job.order is not None:
+        energy[:, job.order] = energy[:, :job.n_tets].copy()
+    ledger = np.concatenate([r[1] for r in rows])
+    counts = np.concatenate([r[2] for r in rows])
+    nb = settings.n_batches
+    per_batch = np.diff(np.arange(nb + 1) * settings.n_histories // nb)
+    result = DoseResult(energy, per_batch, job.mass_g, ledger, counts, plan.particles,
+                        settings.seed, settings.estimator, job.kind, wall_s, __version__,
+                        job.grid, {"materials": job.names, "n_cells": len(job.mass_g),
+                                   **(extra or {})},
+                        n_tets=job.n_tets, on_grid=on_grid)
+    if result.lost_photons > 1e-4 * settings.n_histories:
+        warnings.warn(f"{result.lost_photons} photons were lost in the geometry "
+                      f"({result.relocations} relocations); check the mesh", stacklevel=3)
+    return result
