@@ -124,7 +124,7 @@ def flight_mesh(g, xs, e, k, entry, x, y, z, u, v, w, tau, track, tally, counts)
             return ESCAPES, k, x, y, z, need * mu / MM_PER_CM
 
 
-@kernel
+@njit(cache=True, inline="always")
 def flight_voxel(wg, xs, e, vid, x, y, z, u, v, w, tau, t_min, track, tally, counts):
     """Move a photon through the voxels from (x, y, z) in voxel ``vid``: (outcome, cell, x, y, z, τ).
 
@@ -177,7 +177,7 @@ def flight_voxel(wg, xs, e, vid, x, y, z, u, v, w, tau, t_min, track, tally, cou
             return ESCAPES, -1, x + t_cur * u, y + t_cur * v, z + t_cur * w, tau
 
 
-@kernel
+@njit(cache=True, inline="always")
 def flight(wg, xs, e, cell, x, y, z, u, v, w, tau, track, tally, counts):
     """Move a photon from global ``cell`` to its next interaction through mesh and voxels:
     (outcome, cell, x, y, z). τ carries over every switch.
