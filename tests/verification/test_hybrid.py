@@ -267,3 +267,47 @@ def test_same_seed_same_bits_for_the_hybrid_with_one_or_two_threads(tmp_path):
         out[threads] = np.load(path)
     assert out[1].sum() > 0
     np.testing.assert_array_equal(out[1], out[2])
+
+
+def test_cli_dose_on_mesh_inside_ct_then_compare(tmp_path):
+    """`tetdose dose --mesh --ct` writes the mesh part, the combined and the voxel-part images
+    and the record; `compare` says which region it used."""
+    import json
+    import textwrap
+
+    from tetdose.calibration import HUCalibration
+    from tetdose.cli import main
+    from tetdose.io import read_image, read_mesh, write_image, write_mesh
+
+    grid = grid_for((-40, -40, -40), (40, 40, 40), (5.0, 5.0, 5.0))
+    write_image(tmp_path / "ct.nrrd", Image(np.zeros(grid.shape, np.int16), grid))
+    rho_water = float(HUCalibration.schneider2000().density(np.array([0.0]))[0])
+    mesh = box_mesh((-20, -20, -20), (20, 20, 20), (3, 3, 3), jitter=0.2, seed=4)
+    write_mesh(tmp_path / "mapped.vtu",
+               mesh.with_data(point_data={"density": np.full(mesh.n_points, rho_water)}))
+    (tmp_path / "plan.toml").write_text(textwrap.dedent("""
+        [[beam]]
+        type = "parallel"
+        energy_mev = 1.25
+        position_mm = [0.0, 0.0, -60.0]
+        direction = [0.0, 0.0, 1.0]
+        field_mm = [50.0, 50.0]
+    """))
+    common = ["--plan", str(tmp_path / "plan.toml"), "--histories", "4e3", "--seed", "2", "-q"]
+    assert main(["dose", "--mesh", str(tmp_path / "mapped.vtu"), "--ct", str(tmp_path / "ct.nrrd"),
+                 "-o", str(tmp_path / "dose.vtu"), *common]) == 0
+    assert main(["dose", "--ct", str(tmp_path / "ct.nrrd"), "-o", str(tmp_path / "vox.nrrd"),
+                 *common]) == 0
+    rec = json.loads((tmp_path / "dose.json").read_text())
+    assert rec["world"] == "hybrid" and rec["lost_photons"] == 0 and rec["n_tets"] == mesh.n_tets
+    assert rec["n_voxels"] == grid.n_voxels and rec["mesh_voxel_switches"] > 0
+    tets = read_mesh(tmp_path / "dose.vtu").cell_data["dose"]
+    comb, part = read_image(tmp_path / "dose.nrrd"), read_image(tmp_path / "dose_voxels.nrrd")
+    assert comb.grid.same_as(grid) and (tmp_path / "dose_std.nrrd").exists()
+    inside = np.all(np.abs(grid.voxel_centers_mm()) < 20, axis=1).reshape(grid.shape)
+    assert np.all(part.array[inside] == 0) and comb.array[inside].min() > 0 and tets.max() > 0
+    assert main(["compare", "--mesh-dose", str(tmp_path / "dose.vtu"), "--voxel-dose",
+                 str(tmp_path / "vox.nrrd"), "-o", str(tmp_path / "cmp"), "-q"]) == 0
+    summary = json.loads((tmp_path / "cmp" / "summary.json").read_text())
+    assert summary["region"]["voxels"] == int(inside.sum())
+    assert summary["region"]["volume_cm3"] == pytest.approx(40.0**3 / 1000.0)

@@ -3,7 +3,10 @@
 Both subcommands live here; ``add_args`` tells them apart by the subparser's name.
 ``compare`` puts the mesh dose on the voxel dose's grid (energy-conserving, mass-weighted with
 the mesh's point_data ``density`` when present), then computes gamma maps, DVHs per structure,
-profiles through the dose maximum and difference maps, and writes an HTML + JSON report.
+profiles through the dose maximum and difference maps, and writes an HTML + JSON report. The
+mesh dose exists only inside the mesh (an organ mesh in a hybrid run covers a few organs), so
+gamma is evaluated where both doses are defined — voxels at least half inside the mesh — with
+the reference maximum taken there too; the report states that region (voxels, cm³).
 ``export-dose`` writes a mesh dose (resampled the same way) or a dose image onto a CT's grid as a
 DICOM RT Dose sharing the CT's Frame of Reference when the CT is a DICOM folder.
 """
@@ -80,39 +83,55 @@ def _run_compare(args: argparse.Namespace) -> int:
     from tetdose.compare.report import write_report
     from tetdose.compare.resample import mesh_dose_to_grid
     from tetdose.io import read_image
+    from tetdose.mapping.overlap import compute_overlap
 
     mesh, dose = _read_mesh_dose(_find(args.mesh_dose, "accumulated", MESH_SUFFIXES, "mesh"))
     voxel = read_image(_find(args.voxel_dose, "accumulated", (".nrrd", ".mha", ".nii.gz"),
                              "dose image"))
     voxel = voxel.with_array(np.asarray(voxel.array, dtype=np.float64))
-    mesh_img = mesh_dose_to_grid(mesh, dose, voxel.grid)
+    overlap = compute_overlap(mesh, voxel.grid)
+    mesh_img = mesh_dose_to_grid(mesh, dose, voxel.grid, overlap=overlap)
+    grid = voxel.grid
+    region = (overlap.covered_volume_per_voxel_mm3() >= 0.5 * grid.voxel_volume_mm3
+              ).reshape(grid.shape)
+    if not region.any():
+        raise TetdoseError("no voxel of the dose grid lies at least half inside the mesh; "
+                           "compare a mesh dose with a voxel dose of the same patient")
     masks = _structure_masks(args.structures, voxel.grid) if args.structures else {}
     ref, ev = (voxel, mesh_img) if args.reference == "voxel" else (mesh_img, voxel)
-    figures, summary = _comparison(mesh, dose, mesh_img, voxel, ref, ev, masks, args)
+    figures, summary = _comparison(mesh, dose, mesh_img, voxel, ref, ev, masks, region, args)
     write_report(args.output, figures, summary)
+    reg = summary["region"]
+    print(f"compared where both doses exist: {reg['voxels']} voxels ({reg['volume_cm3']:.1f} "
+          "cm³) at least half inside the mesh")
     for name, g in summary["gamma"].items():
         print(f"gamma {name}: {g['pass_rate_percent']:.2f} % pass")
     print(f"report → {args.output / 'report.html'}")
     return 0
 
 
-def _comparison(mesh, dose, mesh_img, voxel, ref, ev, masks, args):  # noqa: ANN001, ANN202
+def _comparison(mesh, dose, mesh_img, voxel, ref, ev, masks, region, args):  # noqa: ANN001, ANN202
     from tetdose.compare import report
     from tetdose.compare.dvh import dvh, image_dvh
     from tetdose.compare.gamma import gamma_index
     from tetdose.compare.profiles import image_profile, mesh_profile
 
-    kmax = np.unravel_index(int(np.argmax(ref.array)), ref.array.shape)
+    in_region = np.where(region, ref.array, -np.inf)
+    kmax = np.unravel_index(int(np.argmax(in_region)), ref.array.shape)
+    norm = float(ref.array[kmax])
     figures = [report.dose_slices_figure(mesh_img, voxel, k=int(kmax[0]))]
     gammas = {}
     for dd, dta, local in CRITERIA:
         g = gamma_index(ref, ev, dose_percent=dd, dta_mm=dta, local=local,
-                        threshold_percent=args.threshold, max_points=args.gamma_max_points)
+                        threshold_percent=args.threshold, max_points=args.gamma_max_points,
+                        mask=region, normalization_gy=norm)
         gammas[g.summary()["criterion"]] = g.summary()
-        slice_mask = np.zeros(ref.array.shape, bool)
-        slice_mask[kmax[0]] = True
+        slice_mask = region.copy()
+        slice_mask[:kmax[0]] = False
+        slice_mask[kmax[0] + 1:] = False
         g_slice = gamma_index(ref, ev, dose_percent=dd, dta_mm=dta, local=local,
-                              threshold_percent=args.threshold, mask=slice_mask)
+                              threshold_percent=args.threshold, mask=slice_mask,
+                              normalization_gy=norm)
         figures.append(report.gamma_figure(g_slice, k=int(kmax[0])))
     covered = mesh_img.array > 0
     structures = {"mesh": (np.ones(mesh.n_tets, bool), covered)}
@@ -136,9 +155,14 @@ def _comparison(mesh, dose, mesh_img, voxel, ref, ev, masks, args):  # noqa: ANN
         a[axis], b[axis] = lo_mm[axis], hi_mm[axis]
         figures.append(report.profiles_figure(
             [mesh_profile(mesh, dose, a, b), image_profile(voxel, a, b)], name=f"profile_{name}"))
-    above = ref.array >= args.threshold / 100.0 * ref.array.max()
-    diff = (mesh_img.array - voxel.array)[above & covered]
-    summary = {"mesh_dose_max_gy": float(dose.max()), "voxel_dose_max_gy": float(voxel.array.max()),
+    above = ref.array >= args.threshold / 100.0 * norm
+    diff = (mesh_img.array - voxel.array)[above & region]
+    n_region = int(region.sum())
+    summary = {"region": {"description": "voxels at least half inside the mesh",
+                          "voxels": n_region,
+                          "volume_cm3": n_region * voxel.grid.voxel_volume_mm3 / 1000.0,
+                          "reference_max_gy": norm},
+               "mesh_dose_max_gy": float(dose.max()), "voxel_dose_max_gy": float(voxel.array.max()),
                "mean_abs_difference_gy": float(np.abs(diff).mean()) if diff.size else float("nan"),
                "gamma": gammas, "dvh": dvh_summary}
     return figures, summary

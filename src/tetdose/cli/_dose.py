@@ -1,7 +1,11 @@
-"""``tetdose dose``: photon dose on a mapped mesh (per tetrahedron) or a CT (per voxel).
+"""``tetdose dose``: photon dose on a mapped mesh, a CT, or the mesh inside the CT (hybrid).
 
-Writes the dose (cell_data ``dose``/``dose_std`` in Gy for a mesh; ``dose`` and ``*_std`` images
-for a CT) and the JSON run record beside it (``dose.json`` for ``dose.vtu``).
+``--mesh`` alone: the mesh in vacuum, dose per tetrahedron (``-o dose.vtu``). ``--ct`` alone: dose
+per voxel (``-o dose.nrrd``). Both: the hybrid world — the mesh is the truth inside it, the CT's
+voxels outside — writing ``dose.vtu`` (mesh part), ``dose.nrrd`` + ``dose_std.nrrd`` beside it
+(the combined dose on the CT grid: mesh energy put on the voxels through the exact overlaps) and
+``dose_voxels.nrrd`` (the voxel part alone; voxels inside the mesh 0). Always the JSON run record
+beside the output (``dose.json`` for ``dose.vtu``).
 """
 
 from __future__ import annotations
@@ -13,13 +17,18 @@ from typing import Any
 
 import numpy as np
 
+from tetdose.cli._common import add_calibration_arg, calibration_from
 from tetdose.errors import PlanError
+
+MESH_SUFFIXES = (".vtu", ".vtk", ".xdmf", ".msh")
 
 
 def add_args(parser: argparse.ArgumentParser) -> None:
-    src = parser.add_mutually_exclusive_group(required=True)
-    src.add_argument("--mesh", type=Path, help="mapped mesh (VTU with point_data density g/cm³)")
-    src.add_argument("--ct", type=Path, help="CT image or DICOM folder (HU)")
+    parser.add_argument("--mesh", type=Path,
+                        help="mapped mesh (VTU with point_data density g/cm³); with --ct: the "
+                             "part of the patient that is meshed")
+    parser.add_argument("--ct", type=Path,
+                        help="CT image or DICOM folder (HU); with --mesh: the rest of the body")
     parser.add_argument("--plan", type=Path, required=True, help="plan.toml (beams, materials)")
     parser.add_argument("--histories", type=float, default=1e6, help="source photons (e.g. 1e7)")
     parser.add_argument("--seed", type=int, default=1, help="master random seed")
@@ -28,11 +37,11 @@ def add_args(parser: argparse.ArgumentParser) -> None:
                         default="track_length", help="dose tally (default: track_length)")
     parser.add_argument("--cutoff-mev", type=float, default=0.01,
                         help="photon energy cut-off, deposited locally [MeV]")
-    parser.add_argument("--calibration", type=Path,
-                        help="HU→density CSV for --ct (default: Schneider 2000)")
+    add_calibration_arg(parser)
     parser.add_argument("--labels", type=Path, help="label image for --ct (region → [materials])")
     parser.add_argument("-o", "--output", type=Path, required=True,
-                        help="dose.vtu (with --mesh) or dose.nrrd / .mha / .nii.gz (with --ct)")
+                        help="dose.vtu (with --mesh, also with --ct) or dose.nrrd / .mha / "
+                             ".nii.gz (--ct alone)")
     add_dask_arg(parser)
 
 
@@ -67,49 +76,73 @@ def record_path(output: Path) -> Path:
     return output.with_name(output.name.split(".")[0] + ".json")
 
 
-def _std_path(output: Path) -> Path:
+def _sibling(output: Path, suffix: str = "", ext: str | None = None) -> Path:
+    """``dose_std.nrrd`` for ``dose.nrrd`` (suffix "_std"); ``dose.nrrd`` for ``dose.vtu``
+    (ext "nrrd")."""
     stem, _, rest = output.name.partition(".")
-    return output.with_name(f"{stem}_std.{rest}")
+    return output.with_name(f"{stem}{suffix}.{ext or rest}")
+
+
+def _write_images(result: Any, output: Path) -> list[str]:  # noqa: ANN401
+    """The (combined) dose and its σ as float32 images: ``output`` and ``*_std``."""
+    from tetdose.io import write_image
+
+    dose, dose_std = result.to_images()
+    write_image(output, dose.with_array(dose.array.astype(np.float32)))
+    write_image(_sibling(output, "_std"), dose_std.with_array(dose_std.array.astype(np.float32)))
+    return [str(output), str(_sibling(output, "_std"))]
 
 
 def run(args: argparse.Namespace) -> int:
-    from tetdose.calibration import HUCalibration
     from tetdose.io import read_image, read_mesh, write_image, write_mesh
-    from tetdose.transport import Plan, TransportSettings
+    from tetdose.transport import Plan, TransportSettings, World
 
+    if args.mesh is None and args.ct is None:
+        raise PlanError("give --mesh (a mapped mesh), --ct (a CT), or both (the mesh inside "
+                        "the CT)")
     if args.histories != int(args.histories) or args.histories < 1:
         raise PlanError(f"--histories must be a positive whole number, got {args.histories:g}")
+    is_mesh_out = args.output.suffix.lower() in MESH_SUFFIXES
+    if args.mesh is not None and not is_mesh_out:
+        raise PlanError(f"with --mesh the output must be a mesh file (.vtu), got {args.output}")
+    if args.mesh is None and is_mesh_out:
+        raise PlanError(f"with --ct alone the output must be an image (.nrrd), got {args.output}")
+    if args.labels is not None and args.ct is None:
+        raise PlanError("--labels labels the CT's voxels; give --ct too")
     plan = Plan.from_toml(args.plan)
     settings = TransportSettings(int(args.histories), args.batches, args.seed,
                                  args.cutoff_mev, args.estimator)
     progress = False if args.quiet else None
     extra: dict[str, object] = {"plan": str(args.plan), "dask": args.dask}
-    if args.mesh is not None:
-        if args.output.suffix.lower() not in (".vtu", ".vtk", ".xdmf", ".msh"):
-            raise PlanError(f"with --mesh the output must be a mesh file (.vtu), got {args.output}")
-        mesh = read_mesh(args.mesh)
-        with dask_context(args.dask) as client:
-            result = _simulate(client, mesh, plan, settings, progress=progress)
-        write_mesh(args.output, result.to_mesh(mesh))
-        extra.update(mesh=str(args.mesh), outputs=[str(args.output)])
-    else:
+    mesh = read_mesh(args.mesh) if args.mesh is not None else None
+    density = labels = None
+    if args.ct is not None:
         ct = read_image(args.ct)
-        cal = (HUCalibration.from_csv(args.calibration) if args.calibration
-               else HUCalibration.schneider2000())
+        cal = calibration_from(args)
         density = ct.with_array(cal.density(ct.array).astype(np.float64))
         labels = read_image(args.labels) if args.labels else None
-        with dask_context(args.dask) as client:
-            result = _simulate(client, density, plan, settings, labels=labels, progress=progress)
-        dose, dose_std = result.to_images()
-        write_image(args.output, dose.with_array(dose.array.astype(np.float32)))
-        write_image(_std_path(args.output), dose_std.with_array(dose_std.array.astype(np.float32)))
-        extra.update(ct=str(args.ct), calibration=cal.name,
-                     outputs=[str(args.output), str(_std_path(args.output))])
-    result.extra.update(extra)
+        extra.update(ct=str(args.ct), calibration=cal.name)
+    world = World(mesh=mesh, density=density, labels=labels)
+    with dask_context(args.dask) as client:
+        result = _simulate(client, world, plan, settings, progress=progress)
+    outputs: list[str] = []
+    if mesh is not None:
+        write_mesh(args.output, result.to_mesh(mesh))
+        outputs.append(str(args.output))
+        extra["mesh"] = str(args.mesh)
+    if density is not None:
+        image_out = _sibling(args.output, ext="nrrd") if mesh is not None else args.output
+        outputs += _write_images(result, image_out)
+        if mesh is not None:
+            part, _ = result.voxel_part().to_images()
+            voxels_out = _sibling(args.output, "_voxels", "nrrd")
+            write_image(voxels_out, part.with_array(part.array.astype(np.float32)))
+            outputs.append(str(voxels_out))
+    result.extra.update(extra, world=world.kind, outputs=outputs)
     path = result.save_json(record_path(args.output))
     if not args.quiet:
         led = result.ledger
-        print(f"dose: {result.n_histories} histories in {result.wall_s:.1f} s; max "
-              f"{result.dose_gy.max():.4g} Gy; deposited {led['deposited_mev']:.4g} MeV and "
-              f"escaped {led['escaped_mev']:.4g} MeV per particle → {args.output}, {path}")
+        print(f"dose ({world.kind}): {result.n_histories} histories in {result.wall_s:.1f} s; "
+              f"max {result.dose_gy.max():.4g} Gy; deposited {led['deposited_mev']:.4g} MeV and "
+              f"escaped {led['escaped_mev']:.4g} MeV per particle → {', '.join(outputs)}, {path}")
     return 0

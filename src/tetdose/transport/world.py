@@ -35,6 +35,9 @@ from tetdose.transport.geometry import empty_mesh_geometry, mesh_geometry, morto
 #: (mean density per cell [g/cm³], region label per cell or None) → (material index per cell,
 #: material names).
 MaterialRule = Callable[[FloatArray, "IntArray | None"], tuple[IntArray, list[str]]]
+#: A voxel whose uncovered volume is below this fraction is wholly inside the mesh (round-off of
+#: the summed overlap volumes): no voxel mass, no voxel dose.
+COVERED_TOL_REL = 1e-9
 #: How far [mm, relative to the grid's extent] the mesh may reach beyond the grid's outer faces.
 OUTSIDE_TOL_REL = 1e-6
 
@@ -193,7 +196,9 @@ def world_arrays(world: World, material_of: MaterialRule) -> WorldArrays:
         if mesh is not None:
             on_grid, covered = _on_grid(mesh, grid, rho_p)
             lists = list_triangles_per_voxel(tet.bnd_tri, vox.lo, vox.cell, vox.n, LIST_PAD_MM)
-        vox_mass = rho_v * np.clip(grid.voxel_volume_mm3 - covered, 0.0, None) / MM3_PER_CM3
+        uncovered = grid.voxel_volume_mm3 - covered
+        uncovered[uncovered < COVERED_TOL_REL * grid.voxel_volume_mm3] = 0.0  # round-off
+        vox_mass = rho_v * uncovered / MM3_PER_CM3
     tet_mass = (tet_rho * mesh.volumes_mm3 / MM3_PER_CM3) if mesh is not None else np.zeros(0)
     return WorldArrays(WorldGeometry(tet, vox, *lists), names, material,
                        np.concatenate([tet_mass, vox_mass]), order, on_grid)
