@@ -16,8 +16,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from tetdose._checks import check_density
 from tetdose._constants import AIR_DENSITY_G_CM3
 from tetdose._typing import FloatArray
+from tetdose.errors import MeshError, OptionError
 from tetdose.image import Image, ImageGrid
 from tetdose.mapping.overlap import Overlap, compute_overlap
 from tetdose.mesh import TetMesh
@@ -32,14 +34,18 @@ def voxelize(mesh: TetMesh, density_g_cm3: FloatArray, grid: ImageGrid, *,
              overlap: Overlap | None = None, progress: bool = False) -> Image:
     """Density image [g/cm³] of the mesh's linear density on ``grid`` (see module docstring).
 
-    ``overlap`` may pass a precomputed intersection of this mesh with this grid.
+    ``overlap`` may pass a precomputed intersection of this mesh with this grid. NaN or
+    infinite densities (or background) are refused, negative ones warned about
+    (:func:`tetdose._checks.check_density`).
     """
     if partial not in PARTIAL_MODES:
-        raise ValueError(f"partial must be one of {PARTIAL_MODES}, got {partial!r}")
+        raise OptionError(f"partial must be one of {PARTIAL_MODES}, got {partial!r}")
     density = np.asarray(density_g_cm3, dtype=np.float64)
     if density.shape != (mesh.n_points,):
-        raise ValueError(f"density must have one value per point ({mesh.n_points}), "
-                         f"got shape {density.shape}")
+        raise MeshError(f"density must have one value per point ({mesh.n_points}), "
+                        f"got shape {density.shape}")
+    check_density(density, what="vertex densities", fix="map the mesh again or fix its "
+                  "point_data 'density'", negative="warn")
     ov = overlap if overlap is not None else compute_overlap(mesh, grid, progress=progress)
     # Work on the voxels the mesh touches only: memory ∝ pairs plus the one output array.
     touched, pair_to_touched = np.unique(ov.voxel, return_inverse=True)
@@ -61,9 +67,15 @@ def voxelize(mesh: TetMesh, density_g_cm3: FloatArray, grid: ImageGrid, *,
 def _background(background: str | float | Image, grid: ImageGrid) -> FloatArray | float:
     if isinstance(background, Image):
         grid.require_same(background.grid, "the background image and the target grid")
-        return np.asarray(background.array, dtype=np.float64).ravel()
+        return check_density(background.array, what="background voxel densities",
+                             fix="check the CT and its calibration").ravel()
     if isinstance(background, str):
         if background != "air":
-            raise ValueError(f"background must be 'air', a density or an Image, got {background!r}")
+            raise OptionError(f"background must be 'air', a density [g/cm³] or an Image, got "
+                              f"{background!r}")
         return AIR_DENSITY_G_CM3
-    return float(background)
+    value = float(background)
+    if not np.isfinite(value) or value < 0:
+        raise OptionError(f"the background density must be a finite number ≥ 0 g/cm³, got "
+                          f"{background!r}")
+    return value

@@ -12,9 +12,11 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.ndimage import maximum_filter, minimum_filter
 
+from tetdose._checks import check_density
 from tetdose._typing import FloatArray
 from tetdose.calibration import HUCalibration
-from tetdose.image import Image, ImageGrid
+from tetdose.errors import OptionError
+from tetdose.image import Image, ImageGrid, check_ct_hu
 from tetdose.mapping.overlap import Overlap, compute_overlap, warn_if_uncovered
 from tetdose.mapping.solve import project_l2, solve_lsq
 from tetdose.mesh import TetMesh
@@ -72,9 +74,12 @@ def map_density(mesh: TetMesh, ct_hu: Image, *, calibration: HUCalibration | Non
 
     A tetrahedron partly outside the CT gets the mean density of its covered part over its whole
     volume (a warning gives the uncovered fraction); one wholly outside all voxels is an error.
+    A CT that cannot hold HU (:func:`tetdose.image.check_ct_hu`) is refused; negative vertex
+    densities (the paper's least squares can undershoot at sharp edges) are warned about.
     """
     if solver not in SOLVERS:
-        raise ValueError(f"solver must be one of {SOLVERS}, got {solver!r}")
+        raise OptionError(f"solver must be one of {SOLVERS}, got {solver!r}")
+    check_ct_hu(ct_hu)
     calibration = calibration or HUCalibration.schneider2000()
     mesh.check_cells()
     if by_region:
@@ -103,6 +108,9 @@ def map_density(mesh: TetMesh, ct_hu: Image, *, calibration: HUCalibration | Non
         bounds = _vertex_bounds(mesh, ov, pair_rho, ct_hu.with_array(rho_vox.reshape(
             ct_hu.grid.shape)))
         density = project_l2(mesh, rhs, bounds=bounds)
+    check_density(density, what="vertex densities", negative="warn",
+                  fix="the least squares undershoots at sharp edges: use solver 'l2' "
+                      "(CLI: --solver l2)")
     out = mesh.with_data(point_data={"density": density},
                          cell_data={"mass_g": tet_masses_g(mesh, density),
                                     "ct_mass_g": ct_mass_tet})
