@@ -67,12 +67,12 @@ def check_output_file(path: PathLike, *, suffixes: Sequence[str] | None = None,
     ``suffixes``: accepted endings (case-insensitive, e.g. ``(".vtu", ".nii.gz")``).
     """
     target = Path(os.path.abspath(path))
-    if suffixes is not None and not target.name.lower().endswith(tuple(s.lower() for s in suffixes)):
-        raise OutputError(f"{what} {path} has an unknown extension; end it with one of "
-                          f"{', '.join(suffixes)}")
     if target.is_dir():
         raise OutputError(f"{what} {path} is a folder; give a file name such as "
                           f"{Path(path) / ('out' + (suffixes[0] if suffixes else ''))}")
+    if suffixes is not None and not target.name.lower().endswith(tuple(s.lower() for s in suffixes)):
+        raise OutputError(f"{what} {path} has an unknown extension; end it with one of "
+                          f"{', '.join(suffixes)}")
     _check_not_input(target, inputs, what, path)
     _check_parent(target, what)
     return target

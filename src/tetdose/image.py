@@ -160,7 +160,8 @@ class Image:
         if img.GetDimension() != 3:
             raise ImageError(f"expected a 3-D image, got {img.GetDimension()}-D")
         if img.GetNumberOfComponentsPerPixel() != 1:
-            raise ImageError("expected a scalar image; use read_vector_image for displacement fields")
+            raise ImageError(f"expected a scalar image, got {img.GetNumberOfComponentsPerPixel()} "
+                             "values per voxel; give a 3-D image with one value per voxel")
         grid = ImageGrid(img.GetOrigin(), img.GetSpacing(), img.GetDirection(), img.GetSize())
         return Image(sitk.GetArrayFromImage(img), grid)
 

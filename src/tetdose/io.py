@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import contextlib
+import io
 import os
 import warnings
 from pathlib import Path
@@ -45,10 +47,16 @@ def read_mesh(path: str | os.PathLike[str], *, fix_orientation: bool = False) ->
     path = Path(path)
     if not path.exists():
         raise MeshError(f"mesh file {path} does not exist")
+    if path.is_file() and path.stat().st_size == 0:
+        raise MeshError(f"mesh file {path} is empty; give a VTU/VTK/MSH/INP/MESH/ELE file")
+    said = io.StringIO()
     try:
-        m = meshio.read(path)
+        with contextlib.redirect_stdout(said), contextlib.redirect_stderr(said):
+            m = meshio.read(path)
     except (Exception, SystemExit) as exc:  # meshio raises many types, even SystemExit
-        raise MeshError(f"cannot read mesh {path}: {exc}; give a VTU/VTK/MSH/INP/MESH/ELE file"
+        why = str(exc) if not isinstance(exc, SystemExit) else said.getvalue()
+        why = " ".join(why.split()) or type(exc).__name__
+        raise MeshError(f"cannot read mesh {path}: {why}; give a VTU/VTK/MSH/INP/MESH/ELE file"
                         ) from exc
     blocks = [i for i, c in enumerate(m.cells) if c.type == "tetra"]
     if not blocks:
