@@ -23,7 +23,7 @@ import re
 import shutil
 import tempfile
 import time
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from contextlib import contextmanager
 from contextvars import ContextVar
 from dataclasses import dataclass
@@ -79,8 +79,13 @@ def check_output_file(path: PathLike, *, suffixes: Sequence[str] | None = None,
 
 
 def check_output_dir(path: PathLike, *, overwrite: bool = True, force: bool = False,
-                     inputs: Iterable[PathLike] = (), what: str = "output folder") -> Path:
-    """Validate a folder output before any work (see module docstring); return it absolute."""
+                     inputs: Iterable[PathLike] = (), what: str = "output folder",
+                     owned: Callable[[Path], bool] | None = None) -> Path:
+    """Validate a folder output before any work (see module docstring); return it absolute.
+
+    ``owned(folder)`` may recognise a previous output by its contents (for folders that must
+    hold nothing but their own files, e.g. a DICOM series), in place of the marker file.
+    """
     target = Path(os.path.abspath(path))
     if target.exists() and not target.is_dir():
         raise OutputError(f"{what} {path} is an existing file; give a folder name (it is "
@@ -94,8 +99,8 @@ def check_output_dir(path: PathLike, *, overwrite: bool = True, force: bool = Fa
     if target.is_dir() and any(target.iterdir()):
         if not overwrite:
             raise OutputError(f"{what} {path} exists; remove it or choose another folder")
-        if not (target / MARKER).exists() and not (force or _POLICY.get().force) \
-                and not _inside_temporary(target):
+        ours = (target / MARKER).exists() or (owned is not None and owned(target))
+        if not ours and not (force or _POLICY.get().force) and not _inside_temporary(target):
             raise OutputError(f"{what} {path} holds files tetdose did not write; choose a new "
                               "folder, or pass --overwrite to replace it as a whole")
     _check_parent(target, what)
@@ -130,22 +135,24 @@ def atomic_write_file(path: PathLike, *, inputs: Iterable[PathLike] = ()) -> Ite
 
 @contextmanager
 def atomic_write_dir(path: PathLike, *, overwrite: bool = True, force: bool = False,
-                     inputs: Iterable[PathLike] = ()) -> Iterator[Path]:
+                     inputs: Iterable[PathLike] = (), marker: bool = True,
+                     owned: Callable[[Path], bool] | None = None) -> Iterator[Path]:
     """Yield a temporary folder beside ``path``; it replaces ``path`` only if the block succeeds.
 
     A failure (or Ctrl-C) removes the temporary folder, so no half-written series is left behind.
     An existing folder is replaced if it is empty or tetdose wrote it (``overwrite``; any folder
     with ``force``); the new folder gets the marker file :data:`MARKER` unless it is written
-    inside another atomic folder (which carries it).
+    inside another atomic folder (which carries it) or ``marker`` is false (then ``owned``
+    recognises a previous output by its contents, see :func:`check_output_dir`).
     """
-    path = check_output_dir(path, overwrite=overwrite, force=force, inputs=inputs)
+    path = check_output_dir(path, overwrite=overwrite, force=force, inputs=inputs, owned=owned)
     _make_parent(path)
     _clean_stale(path)
     with _os_errors(path.parent):
         tmp = Path(tempfile.mkdtemp(prefix=_temp_prefix(path), suffix=".part", dir=path.parent))
     try:
         yield tmp
-        if not _inside_temporary(path):
+        if marker and not _inside_temporary(path):
             (tmp / MARKER).write_text("written by tetdose; it may replace this folder as a whole\n")
         with _os_errors(path.parent):
             if path.exists():

@@ -143,3 +143,19 @@ def test_folder_inside_another_atomic_write_gets_no_marker(tmp_path):
         (inner / "1.dcm").write_text("x")
     assert sorted(p.name for p in (tmp_path / "study").iterdir()) == [MARKER, "ct"]
     assert [p.name for p in (tmp_path / "study" / "ct").iterdir()] == ["1.dcm"]
+
+
+def test_dicom_series_folder_holds_only_dicom_and_is_recognised_as_ours(tmp_path):
+    import numpy as np
+
+    from tetdose.dicom.ct_series import write_ct_series
+    from tetdose.image import Image, ImageGrid
+
+    ct = Image(np.zeros((2, 3, 4), np.int16), ImageGrid([0, 0, 0], [1, 1, 1], np.eye(3), (4, 3, 2)))
+    first = write_ct_series(ct, tmp_path / "ct")
+    assert sorted(p.name for p in (tmp_path / "ct").iterdir()) == [p.name for p in first]
+    write_ct_series(ct.with_array(ct.array + 5), tmp_path / "ct")  # ours: replaced
+    (tmp_path / "ct" / "report.pdf").write_text("not ours")
+    with pytest.raises(OutputError, match="--overwrite"):
+        write_ct_series(ct, tmp_path / "ct")
+    assert (tmp_path / "ct" / "report.pdf").exists()
