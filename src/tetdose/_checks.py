@@ -11,8 +11,8 @@ from tetdose.errors import DensityError
 
 def check_density(density_g_cm3: np.ndarray, *, what: str, fix: str,
                   negative: str = "error") -> np.ndarray:
-    """Refuse NaN or infinite densities [g/cm³]; refuse (``negative="error"``) or warn about
-    (``"warn"``) negative ones. Returns the values as float64.
+    """Refuse NaN or infinite densities [g/cm³]; refuse (``negative="error"``), warn about
+    (``"warn"``) or allow (``"allow"``) negative ones. Returns the values as float64.
 
     The message names how many values are bad, the first ids and ``fix``.
     """
@@ -23,7 +23,7 @@ def check_density(density_g_cm3: np.ndarray, *, what: str, fix: str,
         raise DensityError(f"{ids.size} of {rho.size} {what} are NaN or infinite (first ids "
                            f"{ids[:5].tolist()}); {fix}")
     neg = rho < 0
-    if neg.any():
+    if negative != "allow" and neg.any():
         ids = np.flatnonzero(neg.ravel())
         msg = (f"{ids.size} of {rho.size} {what} are negative (min {rho.min():.4g} g/cm³, first "
                f"ids {ids[:5].tolist()}); {fix}")

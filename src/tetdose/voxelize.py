@@ -35,8 +35,9 @@ def voxelize(mesh: TetMesh, density_g_cm3: FloatArray, grid: ImageGrid, *,
     """Density image [g/cm³] of the mesh's linear density on ``grid`` (see module docstring).
 
     ``overlap`` may pass a precomputed intersection of this mesh with this grid. NaN or
-    infinite densities (or background) are refused, negative ones warned about
-    (:func:`tetdose._checks.check_density`).
+    infinite densities (or background) are refused (:func:`tetdose._checks.check_density`);
+    negative ones are warned about where they arise (``map_density``) and refused where a
+    mesh is read by the command line.
     """
     if partial not in PARTIAL_MODES:
         raise OptionError(f"partial must be one of {PARTIAL_MODES}, got {partial!r}")
@@ -45,7 +46,7 @@ def voxelize(mesh: TetMesh, density_g_cm3: FloatArray, grid: ImageGrid, *,
         raise MeshError(f"density must have one value per point ({mesh.n_points}), "
                         f"got shape {density.shape}")
     check_density(density, what="vertex densities", fix="map the mesh again or fix its "
-                  "point_data 'density'", negative="warn")
+                  "point_data 'density'", negative="allow")
     ov = overlap if overlap is not None else compute_overlap(mesh, grid, progress=progress)
     # Work on the voxels the mesh touches only: memory ∝ pairs plus the one output array.
     touched, pair_to_touched = np.unique(ov.voxel, return_inverse=True)
