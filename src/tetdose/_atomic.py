@@ -71,8 +71,8 @@ def check_output_file(path: PathLike, *, suffixes: Sequence[str] | None = None,
         raise OutputError(f"{what} {path} is a folder; give a file name such as "
                           f"{Path(path) / ('out' + (suffixes[0] if suffixes else ''))}")
     if suffixes is not None and not target.name.lower().endswith(tuple(s.lower() for s in suffixes)):
-        raise OutputError(f"{what} {path} has an unknown extension; end it with one of "
-                          f"{', '.join(suffixes)}")
+        shown = ", ".join(suffixes[:6]) + (" …" if len(suffixes) > 6 else "")
+        raise OutputError(f"{what} {path} has an unknown extension; end it with {shown}")
     _check_not_input(target, inputs, what, path)
     _check_parent(target, what)
     return target

@@ -167,6 +167,7 @@ def _read_dicom_series(folder: Path) -> Image:
     if modality != {"CT"}:
         raise ImageError(f"{folder}: modality {sorted(modality)}, expected CT; give a CT series")
     normal = _check_orientation(folder, headers)
+    _check_rescale(folder, headers)
     if len(files) > 1:
         pos = np.sort([float(np.dot(normal, h.ImagePositionPatient)) for h in headers])
         gaps = np.diff(pos)
@@ -205,6 +206,20 @@ def _check_orientation(folder: Path, headers: list) -> np.ndarray:  # type: igno
             "onto an orthogonal grid first"
         )
     return np.cross(row, col)
+
+
+def _check_rescale(folder: Path, headers: list) -> None:  # type: ignore[type-arg]
+    """RescaleSlope/Intercept, where present, must be finite numbers and the slope non-zero."""
+    for h in headers:
+        try:
+            slope = float(h.get("RescaleSlope", 1.0))
+            intercept = float(h.get("RescaleIntercept", 0.0))
+        except (TypeError, ValueError) as exc:
+            raise ImageError(f"{folder}: RescaleSlope/RescaleIntercept are not numbers; fix the "
+                             "series headers") from exc
+        if not (np.isfinite(slope) and np.isfinite(intercept) and slope != 0):
+            raise ImageError(f"{folder}: RescaleSlope {slope:g}, RescaleIntercept {intercept:g} "
+                             "cannot give HU; fix the series headers")
 
 
 def _check_shear(folder: Path, headers: list, normal: np.ndarray) -> None:  # type: ignore[type-arg]

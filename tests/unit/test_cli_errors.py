@@ -90,6 +90,7 @@ def d(tmp_path_factory) -> Path:
     series = write_ct_series(Image(ct.array, ct.grid), d / "dicom_ok")
     _dicom_variant(series, d / "dicom_missing", lambda ds, k: k != 3)
     _dicom_variant(series, d / "dicom_mr", lambda ds, k: setattr(ds, "Modality", "MR"))
+    _dicom_variant(series, d / "dicom_slope0", lambda ds, k: setattr(ds, "RescaleSlope", "0"))
 
     def shear(ds, k):  # noqa: ANN001, ANN202 - a gantry tilt: slices shift along y
         pos = [float(v) for v in ds.ImagePositionPatient]
@@ -139,6 +140,7 @@ CASES = [
     ("map-dicom-missing-slice", _map(ct="{d}/dicom_missing"), ["not uniform", "missing"]),
     ("map-dicom-mr", _map(ct="{d}/dicom_mr"), ["modality", "MR", "CT series"]),
     ("map-dicom-sheared", _map(ct="{d}/dicom_sheared"), ["gantry tilt", "not resampled"]),
+    ("map-dicom-slope-0", _map(ct="{d}/dicom_slope0"), ["RescaleSlope 0", "fix the series"]),
     ("map-dicom-skewed", _map(ct="{d}/dicom_skewed"), ["not orthonormal"]),
     ("map-bad-calibration", MAP + ["--calibration", "{d}/bad_cal.csv"], ["increasing"]),
     # --- map: options and output, checked before any work
