@@ -44,6 +44,10 @@ COMMANDS = {
 }
 
 
+DESCRIPTION = ("CT density on deformable tetrahedral meshes: mass-conserving mapping, breathing "
+               "phases, virtual 4D-CT and Monte Carlo photon dose.")
+
+
 class _Parser(argparse.ArgumentParser):
     """An argument parser whose errors are one line naming the fix, like every other error."""
 
@@ -52,7 +56,7 @@ class _Parser(argparse.ArgumentParser):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(prog="tetdose", description=__doc__.splitlines()[0])
+    parser = _Parser(prog="tetdose", description=DESCRIPTION)
     parser.add_argument("--version", action="version", version=f"tetdose {__version__}")
     parser.add_argument("--debug", action="store_true",
                         help="show the full traceback of an error (for bug reports)")
