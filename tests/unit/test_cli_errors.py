@@ -291,3 +291,42 @@ def test_help_shows_no_developer_remarks(capsys):
     assert "meshio" not in text and "_cli" not in text and "--debug" in text
     sub = build_parser()._subparsers._group_actions[0].choices  # noqa: SLF001
     assert "--overwrite" in sub["phantom"].format_help()
+
+
+def test_lsq_undershoot_is_warned_by_map_and_refused_by_voxelize(d, tmp_path, capsys,
+                                                                 monkeypatch):
+    import sys
+    import warnings
+
+    monkeypatch.setattr(warnings, "_showwarnmsg_impl",
+                        lambda msg: sys.stderr.write(warnings._formatwarnmsg(msg)))
+    monkeypatch.setattr(warnings, "filters", [("always", None, Warning, None, 0)])
+    # air (−1000 HU) next to bone: the paper's least squares undershoots below 0 g/cm³
+    grid = grid_for([0, 0, 0], [24, 20, 16], [2.0, 2.0, 2.0])
+    edge = density_image(grid, lambda x, y, z: np.where(x < 11, -1000.0, 1500.0))
+    write_image(tmp_path / "edge.nrrd", edge.with_array(edge.array.astype(np.int16)))
+    assert main(["map", "-q", "--solver", "lsq", "--ct", str(tmp_path / "edge.nrrd"), "--mesh",
+                 str(d / "mesh.vtu"), "-o", str(tmp_path / "lsq.vtu")]) == 0
+    err = capsys.readouterr().err
+    assert "tetdose map: warning:" in err and "negative" in err and "--solver l2" in err
+    assert main(["voxelize", "--mesh", str(tmp_path / "lsq.vtu"), "--like", str(d / "ct.nrrd"),
+                 "-o", str(tmp_path / "v.nrrd")]) == 2
+    assert "negative" in capsys.readouterr().err and not (tmp_path / "v.nrrd").exists()
+
+
+def test_every_folder_writing_command_takes_overwrite(tmp_path, capsys):
+    from tetdose.cli import FOLDER_OUTPUTS
+
+    sub = build_parser()._subparsers._group_actions[0].choices  # noqa: SLF001
+    for name in FOLDER_OUTPUTS:
+        assert "--overwrite" in sub[name].format_help(), name
+    out = tmp_path / "phases"
+    out.mkdir()
+    (out / "thesis.tex").write_text("mine")
+    write_mesh(tmp_path / "m.vtu", box_mesh([0, 0, 0], [4, 4, 4], (1, 1, 1)).with_data(
+        point_data={"density": np.ones(8)}))
+    argv = ["deform", "-q", "--mesh", str(tmp_path / "m.vtu"), "--breathing", "--n-phases", "2",
+            "-o", str(out)]
+    assert main(argv) == 2 and "--overwrite" in capsys.readouterr().err
+    assert (out / "thesis.tex").exists()
+    assert main([*argv, "--overwrite"]) == 0 and not (out / "thesis.tex").exists()

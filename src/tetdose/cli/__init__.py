@@ -44,6 +44,10 @@ COMMANDS = {
 }
 
 
+#: Commands whose -o is a folder replaced as a whole: they all take --overwrite (a command's
+#: module may add it itself through cli._common.add_output_args).
+FOLDER_OUTPUTS = ("deform", "4dct", "compare", "dose4d", "demo", "phantom")
+
 DESCRIPTION = ("CT density on deformable tetrahedral meshes: mass-conserving mapping, breathing "
                "phases, virtual 4D-CT and Monte Carlo photon dose.")
 
@@ -68,6 +72,9 @@ def build_parser() -> argparse.ArgumentParser:
                        help="show the full traceback of an error (for bug reports)")
         p.set_defaults(_module=module)
         importlib.import_module(module).add_args(p)
+        if name in FOLDER_OUTPUTS and "--overwrite" not in p._option_string_actions:  # noqa: SLF001
+            p.add_argument("--overwrite", action="store_true",
+                           help="replace the output folder even if tetdose did not write it")
     return parser
 
 

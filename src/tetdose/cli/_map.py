@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 
+from tetdose._checks import check_density
 from tetdose.cli._common import (
     add_calibration_arg,
     add_output_args,
@@ -40,8 +41,10 @@ def run(args: argparse.Namespace) -> int:
     dm = map_density(mesh, ct, calibration=calibration_from(args), solver=args.solver,
                      overlap=args.overlap, n_samples=args.samples, by_region=args.by_region,
                      progress=not args.quiet)
+    rho = check_density(dm.density_g_cm3, what="vertex densities", negative="warn",
+                        fix="the paper's least squares undershoots at sharp edges, and "
+                            "voxelize/evaluate refuse such a mesh: use --solver l2")
     write_mesh(args.output, dm.mesh)
-    rho = dm.density_g_cm3
     print(f"mapped {mesh.n_tets} tetrahedra, {dm.mesh.n_points} vertices ({args.solver}): density "
           f"{rho.min():.4g}…{rho.max():.4g} g/cm³, mesh mass {dm.mesh_mass_g:.6g} g, CT mass in "
           f"mesh {dm.ct_mass_covered_g:.6g} g (rel. diff. {dm.mass_error_covered:.2e}) → "

@@ -12,7 +12,6 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.ndimage import maximum_filter, minimum_filter
 
-from tetdose._checks import check_density
 from tetdose._typing import FloatArray
 from tetdose.calibration import HUCalibration
 from tetdose.errors import OptionError
@@ -74,8 +73,8 @@ def map_density(mesh: TetMesh, ct_hu: Image, *, calibration: HUCalibration | Non
 
     A tetrahedron partly outside the CT gets the mean density of its covered part over its whole
     volume (a warning gives the uncovered fraction); one wholly outside all voxels is an error.
-    A CT that cannot hold HU (:func:`tetdose.image.check_ct_hu`) is refused; negative vertex
-    densities (the paper's least squares can undershoot at sharp edges) are warned about.
+    A CT that cannot hold HU (:func:`tetdose.image.check_ct_hu`) is refused. Only "lsq" can
+    return negative vertex densities (it undershoots at sharp edges, as the paper's method does).
     """
     if solver not in SOLVERS:
         raise OptionError(f"solver must be one of {SOLVERS}, got {solver!r}")
@@ -108,9 +107,6 @@ def map_density(mesh: TetMesh, ct_hu: Image, *, calibration: HUCalibration | Non
         bounds = _vertex_bounds(mesh, ov, pair_rho, ct_hu.with_array(rho_vox.reshape(
             ct_hu.grid.shape)))
         density = project_l2(mesh, rhs, bounds=bounds)
-    check_density(density, what="vertex densities", negative="warn",
-                  fix="the least squares undershoots at sharp edges: use solver 'l2' "
-                      "(CLI: --solver l2)")
     out = mesh.with_data(point_data={"density": density},
                          cell_data={"mass_g": tet_masses_g(mesh, density),
                                     "ct_mass_g": ct_mass_tet})
