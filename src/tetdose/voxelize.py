@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from tetdose._checks import check_density
-from tetdose._constants import AIR_DENSITY_G_CM3
+from tetdose._constants import AIR_DENSITY_G_CM3, MM3_PER_CM3
 from tetdose._typing import FloatArray
 from tetdose.errors import MeshError, OptionError
 from tetdose.image import Image, ImageGrid
@@ -50,7 +50,7 @@ def voxelize(mesh: TetMesh, density_g_cm3: FloatArray, grid: ImageGrid, *,
     ov = overlap if overlap is not None else compute_overlap(mesh, grid, progress=progress)
     # Work on the voxels the mesh touches only: memory ∝ pairs plus the one output array.
     touched, pair_to_touched = np.unique(ov.voxel, return_inverse=True)
-    pair_mass = np.einsum("pa,pa->p", density[mesh.tets[ov.tet]], ov.bary_mm3) / 1000.0
+    pair_mass = np.einsum("pa,pa->p", density[mesh.tets[ov.tet]], ov.bary_mm3) / MM3_PER_CM3
     mass_g = np.bincount(pair_to_touched, weights=pair_mass, minlength=len(touched))
     covered = np.bincount(pair_to_touched, weights=ov.volume_mm3, minlength=len(touched))
     bg = _background(background, grid)
@@ -58,10 +58,10 @@ def voxelize(mesh: TetMesh, density_g_cm3: FloatArray, grid: ImageGrid, *,
     bg_touched = rho[touched]
     v = grid.voxel_volume_mm3
     if partial == "mass":
-        rho[touched] = (mass_g * 1000.0 + bg_touched * np.clip(v - covered, 0.0, None)) / v
+        rho[touched] = (mass_g * MM3_PER_CM3 + bg_touched * np.clip(v - covered, 0.0, None)) / v
     else:
         hit = covered > MIN_COVER_FRACTION * v
-        rho[touched[hit]] = mass_g[hit] * 1000.0 / covered[hit]
+        rho[touched[hit]] = mass_g[hit] * MM3_PER_CM3 / covered[hit]
     return Image(rho.reshape(grid.shape), grid)
 
 

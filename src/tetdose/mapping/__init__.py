@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.ndimage import maximum_filter, minimum_filter
 
+from tetdose._constants import MM3_PER_CM3
 from tetdose._typing import FloatArray
 from tetdose.calibration import HUCalibration
 from tetdose.errors import OptionError
@@ -55,7 +56,7 @@ class DensityMap:
 
 def tet_masses_g(mesh: TetMesh, density_g_cm3: FloatArray) -> FloatArray:
     """Eq. (3): m(T_k) = ¼ Vol(T_k) Σ ρ(vertices) [g] (volumes in mm³)."""
-    return mesh.volumes_mm3 * density_g_cm3[mesh.tets].mean(axis=1) / 1000.0
+    return mesh.volumes_mm3 * density_g_cm3[mesh.tets].mean(axis=1) / MM3_PER_CM3
 
 
 def map_density(mesh: TetMesh, ct_hu: Image, *, calibration: HUCalibration | None = None,
@@ -92,8 +93,8 @@ def map_density(mesh: TetMesh, ct_hu: Image, *, calibration: HUCalibration | Non
     pair_rho = rho_vox[ov.voxel]
     covered = ov.covered_volume_per_tet_mm3()
     ct_mass_tet = np.bincount(ov.tet, weights=ov.volume_mm3 * pair_rho,
-                              minlength=mesh.n_tets) / 1000.0
-    tet_mean = np.divide(ct_mass_tet * 1000.0, covered, out=np.zeros(mesh.n_tets),
+                              minlength=mesh.n_tets) / MM3_PER_CM3
+    tet_mean = np.divide(ct_mass_tet * MM3_PER_CM3, covered, out=np.zeros(mesh.n_tets),
                          where=covered > 0)
     if solver == "lsq":
         density = solve_lsq(mesh, tet_mean)

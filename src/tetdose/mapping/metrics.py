@@ -22,10 +22,12 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from tetdose._constants import MM3_PER_CM3
 from tetdose._typing import BoolArray
 from tetdose.calibration import HUCalibration
 from tetdose.errors import GeometryMismatchError, ImageError
 from tetdose.image import Image, check_ct_hu
+from tetdose.mapping import tet_masses_g
 from tetdose.mapping.overlap import Overlap, compute_overlap
 from tetdose.mesh import TetMesh
 from tetdose.voxelize import voxelize
@@ -89,11 +91,10 @@ def evaluate(ct_hu: Image, mesh: TetMesh, density_g_cm3: np.ndarray, *,
     rho, rec = original.array[mask], recon.array[mask]
     err = np.abs(rho - rec)
     rel = 100.0 * err / rho
-    v_cm3 = grid.voxel_volume_mm3 / 1000.0
+    v_cm3 = grid.voxel_volume_mm3 / MM3_PER_CM3
     image_mass = float(rho.sum() * v_cm3)
-    tet_mass = mesh.volumes_mm3 * np.asarray(density_g_cm3)[mesh.tets].mean(axis=1) / 1000.0
-    mesh_mass = float(tet_mass.sum())
-    in_mesh = float(np.dot(ov.volume_mm3, original.array.ravel()[ov.voxel]) / 1000.0)
+    mesh_mass = float(tet_masses_g(mesh, np.asarray(density_g_cm3)).sum())
+    in_mesh = float(np.dot(ov.volume_mm3, original.array.ravel()[ov.voxel]) / MM3_PER_CM3)
     metrics = MappingMetrics(
         n_voxels=int(mask.sum()),
         image_mass_g=image_mass,
