@@ -22,6 +22,9 @@ from tetdose.errors import GeometryMismatchError, ImageError
 
 #: Largest |DᵀD − I| accepted for a direction matrix.
 ORTHONORMAL_TOL = 1e-6
+#: CT numbers outside this range [HU] mean the image is not a CT in HU (wrapped or unscaled
+#: values, densities…): air is −1000 HU, padding at most −3024 HU, dense metal about +30000 HU.
+CT_HU_RANGE = (-5000.0, 40000.0)
 
 
 @dataclass(frozen=True, eq=False)
@@ -157,6 +160,43 @@ class Image:
         if img.GetDimension() != 3:
             raise ImageError(f"expected a 3-D image, got {img.GetDimension()}-D")
         if img.GetNumberOfComponentsPerPixel() != 1:
-            raise ImageError("expected a scalar image; use read_vector_image for displacement fields")
+            raise ImageError(f"expected a scalar image, got {img.GetNumberOfComponentsPerPixel()} "
+                             "values per voxel; give a 3-D image with one value per voxel")
         grid = ImageGrid(img.GetOrigin(), img.GetSpacing(), img.GetDirection(), img.GetSize())
         return Image(sitk.GetArrayFromImage(img), grid)
+
+
+def check_ct_hu(image: Image, source: str = "the CT") -> Image:
+    """Refuse an image that cannot be a CT in Hounsfield units; return it unchanged.
+
+    A CT holds signed HU (air ≈ −1000): unsigned or 8-bit pixel types (negative HU wrapped,
+    RescaleIntercept not applied), NaN or infinite voxels, and values outside
+    :data:`CT_HU_RANGE` are refused with what was found.
+    """
+    arr = image.array
+    dtype = arr.dtype
+    if not np.issubdtype(dtype, np.number) or np.iscomplexobj(arr) or dtype == np.bool_:
+        raise ImageError(f"{source} holds {dtype} values; a CT must hold signed HU numbers")
+    lo, hi = (float(arr.min()), float(arr.max())) if np.issubdtype(dtype, np.integer) else \
+        (float(np.nanmin(arr)), float(np.nanmax(arr))) if np.isfinite(arr).any() else (0.0, 0.0)
+    if np.issubdtype(dtype, np.unsignedinteger) or dtype == np.int8:
+        raise ImageError(
+            f"{source} has pixel type {dtype} (values {lo:g}…{hi:g}), which cannot hold the CT "
+            "range (air −1000 HU): negative HU were wrapped or RescaleIntercept was not "
+            "applied; store it as signed HU (e.g. int16) first"
+        )
+    if np.issubdtype(dtype, np.floating):
+        bad = ~np.isfinite(arr)
+        if bad.any():
+            k, j, i = (int(a[0]) for a in np.nonzero(bad))
+            raise ImageError(
+                f"{source} has {int(bad.sum())} NaN or infinite voxel(s) (first at voxel "
+                f"i={i}, j={j}, k={k}); replace them with a CT number (e.g. −1000 HU for air)"
+            )
+    if lo < CT_HU_RANGE[0] or hi > CT_HU_RANGE[1]:
+        raise ImageError(
+            f"{source} holds values {lo:g}…{hi:g}, outside the HU range of a CT "
+            f"({CT_HU_RANGE[0]:g}…{CT_HU_RANGE[1]:g}): give a CT in Hounsfield units (wrapped or "
+            "unscaled pixel values, or densities, are not)"
+        )
+    return image

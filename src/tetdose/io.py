@@ -2,19 +2,35 @@
 
 from __future__ import annotations
 
+import contextlib
+import io
 import os
 import warnings
 from pathlib import Path
 
 import numpy as np
 
-from tetdose._atomic import atomic_write_file
+from tetdose._atomic import atomic_write_file, check_output_file
 from tetdose.errors import ImageError, MeshError
-from tetdose.image import Image
+from tetdose.image import Image, check_ct_hu
 from tetdose.mesh import TetMesh
 
 #: Relative tolerance on slice-to-slice spacing of a DICOM series.
 SLICE_SPACING_RTOL = 1e-3
+#: Largest |ImageOrientationPatient row·column| and | |row| − 1 | accepted (orthonormal).
+ORIENTATION_TOL = 1e-4
+#: Largest in-plane drift of slice positions against the orientation's normal [mm], as a
+#: fraction of the slice stack's length (a gantry tilt of 0.06°) or 0.01 mm, whichever is larger.
+SHEAR_REL_TOL = 1e-3
+#: Coordinates beyond this [mm] (1 km) cannot be patient coordinates in mm.
+MAX_COORD_MM = 1e6
+#: Image file endings SimpleITK writes as 3-D images.
+IMAGE_SUFFIXES = (".nrrd", ".nhdr", ".mha", ".mhd", ".nii", ".nii.gz", ".hdr", ".vtk", ".tif",
+                  ".tiff", ".gipl", ".gipl.gz", ".hdf5", ".h5", ".mnc")
+#: Mesh file endings meshio writes with tetrahedra (VTU recommended).
+MESH_SUFFIXES = (".vtu", ".vtk", ".msh", ".xdmf", ".xmf", ".inp", ".mesh", ".meshb", ".med",
+                 ".ele", ".node", ".h5m", ".f3grid", ".avs", ".dat", ".bdf", ".fem", ".nas",
+                 ".exo", ".e", ".ex2", ".cgns", ".tec", ".ugrid", ".su2", ".vol", ".vol.gz")
 #: cell_data names read as region labels, in order of preference.
 REGION_NAMES = ("region", "gmsh:physical", "medit:ref", "CellEntityIds", "tetgen:ref")
 
@@ -31,10 +47,16 @@ def read_mesh(path: str | os.PathLike[str], *, fix_orientation: bool = False) ->
     path = Path(path)
     if not path.exists():
         raise MeshError(f"mesh file {path} does not exist")
+    if path.is_file() and path.stat().st_size == 0:
+        raise MeshError(f"mesh file {path} is empty; give a VTU/VTK/MSH/INP/MESH/ELE file")
+    said = io.StringIO()
     try:
-        m = meshio.read(path)
+        with contextlib.redirect_stdout(said), contextlib.redirect_stderr(said):
+            m = meshio.read(path)
     except (Exception, SystemExit) as exc:  # meshio raises many types, even SystemExit
-        raise MeshError(f"cannot read mesh {path}: {exc}; give a VTU/VTK/MSH/INP/MESH/ELE file"
+        why = str(exc) if not isinstance(exc, SystemExit) else said.getvalue()
+        why = " ".join(why.split()) or type(exc).__name__
+        raise MeshError(f"cannot read mesh {path}: {why}; give a VTU/VTK/MSH/INP/MESH/ELE file"
                         ) from exc
     blocks = [i for i, c in enumerate(m.cells) if c.type == "tetra"]
     if not blocks:
@@ -63,15 +85,29 @@ def read_mesh(path: str | os.PathLike[str], *, fix_orientation: bool = False) ->
         points, tets = points[used], new_id[tets]
         point_data = {k: v[used] for k, v in point_data.items()}
     mesh = TetMesh(points, tets, region, point_data, cell_data)
+    far = np.abs(mesh.points_mm).max(axis=1) > MAX_COORD_MM
+    if far.any():
+        i = int(np.flatnonzero(far)[0])
+        raise MeshError(
+            f"{int(far.sum())} point(s) in {path} lie more than {MAX_COORD_MM / 1e6:g} km from the "
+            f"origin (first: id {i} at {np.round(mesh.points_mm[i], 1).tolist()} mm); patient "
+            "coordinates must be in mm — fix the mesh file"
+        )
     if fix_orientation:
         mesh = mesh.with_fixed_orientation()
     mesh.check_cells(context=f"in {path}")
     return mesh
 
 
-def write_mesh(path: str | os.PathLike[str], mesh: TetMesh) -> Path:
-    """Write a mesh with all its arrays (VTU recommended); atomic."""
+def write_mesh(path: str | os.PathLike[str], mesh: TetMesh, *,
+               inputs: tuple[str | os.PathLike[str], ...] = ()) -> Path:
+    """Write a mesh with all its arrays (VTU recommended); atomic, never onto one of ``inputs``.
+
+    The extension (one of :data:`MESH_SUFFIXES`) chooses the format.
+    """
     import meshio
+
+    check_output_file(path, suffixes=MESH_SUFFIXES, inputs=inputs, what="mesh output")
 
     cell_data = {k: [np.asarray(v)] for k, v in mesh.cell_data.items()}
     if mesh.region is not None:
@@ -79,7 +115,7 @@ def write_mesh(path: str | os.PathLike[str], mesh: TetMesh) -> Path:
     m = meshio.Mesh(mesh.points_mm, [("tetra", mesh.tets)], point_data=dict(mesh.point_data),
                     cell_data=cell_data)
     path = Path(path)
-    with atomic_write_file(path) as tmp:
+    with atomic_write_file(path, inputs=inputs) as tmp:
         meshio.write(tmp, m, file_format=_meshio_format(path))
     return path
 
@@ -108,7 +144,11 @@ def read_image(path: str | os.PathLike[str]) -> Image:
     return Image.from_sitk(img)
 
 
-read_ct = read_image
+def read_ct(path: str | os.PathLike[str]) -> Image:
+    """Read a CT [HU] with :func:`read_image` and refuse what cannot be one
+    (:func:`tetdose.image.check_ct_hu`: unsigned or 8-bit pixels, NaN voxels, values off the HU
+    range)."""
+    return check_ct_hu(read_image(path), f"the CT {path}")
 
 
 def _read_dicom_series(folder: Path) -> Image:
@@ -126,9 +166,9 @@ def _read_dicom_series(folder: Path) -> Image:
     modality = {str(h.get("Modality", "")) for h in headers}
     if modality != {"CT"}:
         raise ImageError(f"{folder}: modality {sorted(modality)}, expected CT; give a CT series")
+    normal = _check_orientation(folder, headers)
+    _check_rescale(folder, headers)
     if len(files) > 1:
-        iop = np.array(headers[0].ImageOrientationPatient, dtype=float)
-        normal = np.cross(iop[:3], iop[3:])
         pos = np.sort([float(np.dot(normal, h.ImagePositionPatient)) for h in headers])
         gaps = np.diff(pos)
         if gaps.min() <= 0 or (gaps.max() - gaps.min()) > SLICE_SPACING_RTOL * gaps.mean():
@@ -136,18 +176,78 @@ def _read_dicom_series(folder: Path) -> Image:
                 f"{folder}: slice spacing is not uniform (gaps {gaps.min():.4g}…{gaps.max():.4g} mm"
                 "); missing or duplicate slices — resample to a uniform grid first"
             )
+        _check_shear(folder, headers, normal)
     reader.SetFileNames(files)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         img = reader.Execute()
-    return Image.from_sitk(img)
+    return check_ct_hu(Image.from_sitk(img), f"the CT series {folder}")
 
 
-def write_image(path: str | os.PathLike[str], image: Image, *, compress: bool = True) -> Path:
-    """Write an image with SimpleITK (format from the extension: .nrrd, .mha, .nii.gz …); atomic."""
+def _check_orientation(folder: Path, headers: list) -> np.ndarray:  # type: ignore[type-arg]
+    """The series' common, orthonormal ImageOrientationPatient → the slice normal."""
+    try:
+        iops = np.array([[float(v) for v in h.ImageOrientationPatient] for h in headers])
+        np.array([[float(v) for v in h.ImagePositionPatient] for h in headers]).reshape(-1, 3)
+    except (AttributeError, TypeError, ValueError) as exc:
+        raise ImageError(f"{folder}: a slice lacks a valid ImageOrientationPatient or "
+                         "ImagePositionPatient; give a complete CT series") from exc
+    if iops.shape[1] != 6:
+        raise ImageError(f"{folder}: ImageOrientationPatient must hold 6 numbers")
+    if np.abs(iops - iops[0]).max() > ORIENTATION_TOL:
+        raise ImageError(f"{folder}: the slices have different ImageOrientationPatient; give a "
+                         "series whose slices share one orientation")
+    row, col = iops[0, :3], iops[0, 3:]
+    dev = max(abs(np.linalg.norm(row) - 1), abs(np.linalg.norm(col) - 1), abs(row @ col))
+    if dev > ORIENTATION_TOL:
+        raise ImageError(
+            f"{folder}: ImageOrientationPatient {iops[0].round(6).tolist()} is not orthonormal "
+            f"(row·column = {row @ col:.3g}); refused — fix the header or resample the series "
+            "onto an orthogonal grid first"
+        )
+    return np.cross(row, col)
+
+
+def _check_rescale(folder: Path, headers: list) -> None:  # type: ignore[type-arg]
+    """RescaleSlope/Intercept, where present, must be finite numbers and the slope non-zero."""
+    for h in headers:
+        try:
+            slope = float(h.get("RescaleSlope", 1.0))
+            intercept = float(h.get("RescaleIntercept", 0.0))
+        except (TypeError, ValueError) as exc:
+            raise ImageError(f"{folder}: RescaleSlope/RescaleIntercept are not numbers; fix the "
+                             "series headers") from exc
+        if not (np.isfinite(slope) and np.isfinite(intercept) and slope != 0):
+            raise ImageError(f"{folder}: RescaleSlope {slope:g}, RescaleIntercept {intercept:g} "
+                             "cannot give HU; fix the series headers")
+
+
+def _check_shear(folder: Path, headers: list, normal: np.ndarray) -> None:  # type: ignore[type-arg]
+    """Refuse slice positions that drift in-plane along the stack (gantry tilt, sheared grid)."""
+    pos = np.array([[float(v) for v in h.ImagePositionPatient] for h in headers])
+    along = pos @ normal
+    first = int(np.argmin(along))
+    rel = pos - pos[first]
+    drift = rel - np.outer(along - along[first], normal)
+    shear_mm = float(np.sqrt((drift**2).sum(axis=1)).max())
+    length = float(along.max() - along.min())
+    if shear_mm > max(0.01, SHEAR_REL_TOL * length):
+        tilt = float(np.degrees(np.arctan2(shear_mm, length)))
+        raise ImageError(
+            f"{folder}: slice positions drift {shear_mm:.3g} mm in-plane over the {length:.4g} mm "
+            f"stack (gantry tilt or sheared grid, ≈ {tilt:.2f}°); refused, not resampled — "
+            "resample the series onto an orthogonal grid first"
+        )
+
+
+def write_image(path: str | os.PathLike[str], image: Image, *, compress: bool = True,
+                inputs: tuple[str | os.PathLike[str], ...] = ()) -> Path:
+    """Write an image with SimpleITK (format from the extension, one of :data:`IMAGE_SUFFIXES`:
+    .nrrd, .mha, .nii.gz …); atomic, never onto one of ``inputs``."""
     import SimpleITK as sitk
 
+    check_output_file(path, suffixes=IMAGE_SUFFIXES, inputs=inputs, what="image output")
     path = Path(path)
-    with atomic_write_file(path) as tmp:
+    with atomic_write_file(path, inputs=inputs) as tmp:
         sitk.WriteImage(image.to_sitk(), str(tmp), compress)
     return path

@@ -16,8 +16,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from tetdose._constants import AIR_DENSITY_G_CM3
+from tetdose._checks import check_density
+from tetdose._constants import AIR_DENSITY_G_CM3, MM3_PER_CM3
 from tetdose._typing import FloatArray
+from tetdose.errors import MeshError, OptionError
 from tetdose.image import Image, ImageGrid
 from tetdose.mapping.overlap import Overlap, compute_overlap
 from tetdose.mesh import TetMesh
@@ -32,18 +34,23 @@ def voxelize(mesh: TetMesh, density_g_cm3: FloatArray, grid: ImageGrid, *,
              overlap: Overlap | None = None, progress: bool = False) -> Image:
     """Density image [g/cm³] of the mesh's linear density on ``grid`` (see module docstring).
 
-    ``overlap`` may pass a precomputed intersection of this mesh with this grid.
+    ``overlap`` may pass a precomputed intersection of this mesh with this grid. NaN or
+    infinite densities (or background) are refused (:func:`tetdose._checks.check_density`);
+    negative ones are warned about where they arise (``map_density``) and refused where a
+    mesh is read by the command line.
     """
     if partial not in PARTIAL_MODES:
-        raise ValueError(f"partial must be one of {PARTIAL_MODES}, got {partial!r}")
+        raise OptionError(f"partial must be one of {PARTIAL_MODES}, got {partial!r}")
     density = np.asarray(density_g_cm3, dtype=np.float64)
     if density.shape != (mesh.n_points,):
-        raise ValueError(f"density must have one value per point ({mesh.n_points}), "
-                         f"got shape {density.shape}")
+        raise MeshError(f"density must have one value per point ({mesh.n_points}), "
+                        f"got shape {density.shape}")
+    check_density(density, what="vertex densities", fix="map the mesh again or fix its "
+                  "point_data 'density'", negative="allow")
     ov = overlap if overlap is not None else compute_overlap(mesh, grid, progress=progress)
     # Work on the voxels the mesh touches only: memory ∝ pairs plus the one output array.
     touched, pair_to_touched = np.unique(ov.voxel, return_inverse=True)
-    pair_mass = np.einsum("pa,pa->p", density[mesh.tets[ov.tet]], ov.bary_mm3) / 1000.0
+    pair_mass = np.einsum("pa,pa->p", density[mesh.tets[ov.tet]], ov.bary_mm3) / MM3_PER_CM3
     mass_g = np.bincount(pair_to_touched, weights=pair_mass, minlength=len(touched))
     covered = np.bincount(pair_to_touched, weights=ov.volume_mm3, minlength=len(touched))
     bg = _background(background, grid)
@@ -51,19 +58,25 @@ def voxelize(mesh: TetMesh, density_g_cm3: FloatArray, grid: ImageGrid, *,
     bg_touched = rho[touched]
     v = grid.voxel_volume_mm3
     if partial == "mass":
-        rho[touched] = (mass_g * 1000.0 + bg_touched * np.clip(v - covered, 0.0, None)) / v
+        rho[touched] = (mass_g * MM3_PER_CM3 + bg_touched * np.clip(v - covered, 0.0, None)) / v
     else:
         hit = covered > MIN_COVER_FRACTION * v
-        rho[touched[hit]] = mass_g[hit] * 1000.0 / covered[hit]
+        rho[touched[hit]] = mass_g[hit] * MM3_PER_CM3 / covered[hit]
     return Image(rho.reshape(grid.shape), grid)
 
 
 def _background(background: str | float | Image, grid: ImageGrid) -> FloatArray | float:
     if isinstance(background, Image):
         grid.require_same(background.grid, "the background image and the target grid")
-        return np.asarray(background.array, dtype=np.float64).ravel()
+        return check_density(background.array, what="background voxel densities",
+                             fix="check the CT and its calibration").ravel()
     if isinstance(background, str):
         if background != "air":
-            raise ValueError(f"background must be 'air', a density or an Image, got {background!r}")
+            raise OptionError(f"background must be 'air', a density [g/cm³] or an Image, got "
+                              f"{background!r}")
         return AIR_DENSITY_G_CM3
-    return float(background)
+    value = float(background)
+    if not np.isfinite(value) or value < 0:
+        raise OptionError(f"the background density must be a finite number ≥ 0 g/cm³, got "
+                          f"{background!r}")
+    return value

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import SimpleITK as sitk
 
-from tetdose._atomic import atomic_write_dir, atomic_write_file
+from tetdose._atomic import MARKER, atomic_write_dir, atomic_write_file
 from tetdose.errors import ImageError, MeshError
 from tetdose.image import Image, ImageGrid
 from tetdose.io import read_image, read_mesh, write_image, write_mesh
@@ -104,7 +104,8 @@ def test_atomic_file_and_dir_leave_nothing_on_failure(tmp_path):
         (d / "1.dcm").write_text("x")
     with atomic_write_dir(tmp_path / "series") as d:  # overwrite replaces the whole folder
         (d / "2.dcm").write_text("y")
-    assert sorted(p.name for p in (tmp_path / "series").iterdir()) == ["2.dcm"]
+    # the folder holds the new file and the marker saying tetdose wrote it (and may replace it)
+    assert sorted(p.name for p in (tmp_path / "series").iterdir()) == [MARKER, "2.dcm"]
     assert [p.name for p in tmp_path.iterdir()] == ["series"]
 
 

@@ -7,6 +7,7 @@ import subprocess
 import pytest
 
 from tetdose import study
+from tetdose._atomic import MARKER
 from tetdose.cli import main
 
 
@@ -53,6 +54,7 @@ def test_interrupted_run_leaves_previous_output_untouched(tmp_path, monkeypatch)
     out = tmp_path / "demo-out"
     out.mkdir()
     (out / "keep.txt").write_text("previous run")
+    (out / MARKER).write_text("")  # a previous run's output, which tetdose may replace
 
     def interrupt(self):
         raise KeyboardInterrupt

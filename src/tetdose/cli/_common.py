@@ -1,9 +1,15 @@
-"""Argument helpers shared by the subcommands."""
+"""Argument helpers shared by the subcommands: typed options checked at parse time, the output
+option with ``--overwrite``, and inputs read with their checks."""
 
 from __future__ import annotations
 
 import argparse
+import math
+from collections.abc import Callable, Sequence
+from pathlib import Path
 
+from tetdose._atomic import check_output_dir, check_output_file
+from tetdose._checks import check_density
 from tetdose.calibration import HUCalibration
 from tetdose.errors import MeshError
 from tetdose.io import read_mesh
@@ -20,9 +26,68 @@ def calibration_from(args: argparse.Namespace) -> HUCalibration:
         HUCalibration.schneider2000()
 
 
+def add_output_args(parser: argparse.ArgumentParser, help_text: str, *, folder: bool,
+                    metavar: str | None = None) -> None:
+    """``-o/--output`` (required) and, for a folder, ``--overwrite``."""
+    parser.add_argument("-o", "--output", required=True, metavar=metavar, help=help_text)
+    if folder:
+        parser.add_argument("--overwrite", action="store_true",
+                            help="replace the output folder even if tetdose did not write it")
+
+
+def check_output(args: argparse.Namespace, *, suffixes: Sequence[str] | None = None,
+                 folder: bool = False) -> Path:
+    """Validate ``args.output`` before any work (extension, not an input, writable, and for a
+    folder: not a foreign folder unless ``--overwrite``); see :mod:`tetdose._atomic`."""
+    if folder:
+        return check_output_dir(args.output, force=bool(getattr(args, "overwrite", False)),
+                                what="-o folder")
+    return check_output_file(args.output, suffixes=suffixes, what="-o")
+
+
+def int_at_least(low: int) -> Callable[[str], int]:
+    """argparse type: a whole number ≥ ``low``."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a whole number ≥ {low}, got {text!r}"
+                                             ) from None
+        if value < low:
+            raise argparse.ArgumentTypeError(f"must be a whole number ≥ {low}, got {value}")
+        return value
+
+    parse.__name__ = f"int ≥ {low}"
+    return parse
+
+
+def density_or_word(words: Sequence[str]) -> Callable[[str], str | float]:
+    """argparse type: one of ``words`` or a finite density ≥ 0 [g/cm³]."""
+
+    def parse(text: str) -> str | float:
+        if text.strip().lower() in words:
+            return text.strip().lower()
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(
+                f"expected {', '.join(words)} or a density in g/cm³, got {text!r}") from None
+        if not math.isfinite(value) or value < 0:
+            raise argparse.ArgumentTypeError(f"a density must be a finite number ≥ 0 g/cm³, "
+                                             f"got {text!r}")
+        return value
+
+    parse.__name__ = "background"
+    return parse
+
+
 def read_mapped_mesh(path: str) -> TetMesh:
-    """A mesh that carries point_data ``density`` [g/cm³] (the output of ``tetdose map``)."""
+    """A mesh that carries point_data ``density`` [g/cm³] (the output of ``tetdose map``),
+    finite and non-negative."""
     mesh = read_mesh(path)
     if "density" not in mesh.point_data:
         raise MeshError(f"{path} has no point_data 'density'; run `tetdose map` first")
+    check_density(mesh.point_data["density"], what=f"vertex densities in {path}",
+                  fix="map the mesh again (`tetdose map`, default --solver l2)")
     return mesh

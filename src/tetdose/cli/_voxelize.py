@@ -6,37 +6,42 @@ import argparse
 
 import numpy as np
 
-from tetdose.cli._common import add_calibration_arg, calibration_from, read_mapped_mesh
-from tetdose.image import Image
-from tetdose.io import read_image, write_image
+from tetdose.cli._common import (
+    add_calibration_arg,
+    add_output_args,
+    calibration_from,
+    check_output,
+    density_or_word,
+    read_mapped_mesh,
+)
+from tetdose.image import Image, check_ct_hu
+from tetdose.io import IMAGE_SUFFIXES, read_image, write_image
 from tetdose.voxelize import PARTIAL_MODES, voxelize
 
 
 def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mesh", required=True, help="mapped mesh (point_data 'density' in g/cm³)")
     p.add_argument("--like", required=True, help="image whose grid the output uses (e.g. the CT)")
-    p.add_argument("-o", "--output", required=True, help="output image (.nrrd, .mha, .nii.gz)")
+    add_output_args(p, "output image (.nrrd, .mha, .nii.gz …)", folder=False)
     p.add_argument("--hu", action="store_true", help="write HU (inverse calibration), not g/cm³")
     p.add_argument("--partial", choices=PARTIAL_MODES, default="mass",
                    help="voxels partly inside: plain partial volume (mass) or the paper's "
                         "extrapolation of the inside density")
-    p.add_argument("--background", default="air",
+    p.add_argument("--background", default="air", type=density_or_word(("air", "ct")),
                    help="outside the mesh: air, ct (the --like image through the calibration), "
-                        "or a density in g/cm³")
+                        "or a density ≥ 0 in g/cm³")
     add_calibration_arg(p)
 
 
 def run(args: argparse.Namespace) -> int:
+    check_output(args, suffixes=IMAGE_SUFFIXES)
     mesh = read_mapped_mesh(args.mesh)
     like = read_image(args.like)
     cal = calibration_from(args)
-    background: str | float | Image
+    background: str | float | Image = args.background
     if args.background == "ct":
+        like = check_ct_hu(like, f"--like {args.like} (used as --background ct)")
         background = like.with_array(cal.density(like.array))
-    elif args.background == "air":
-        background = "air"
-    else:
-        background = float(args.background)
     img = voxelize(mesh, mesh.point_data["density"], like.grid, background=background,
                    partial=args.partial, progress=not args.quiet)
     if args.hu:

@@ -30,6 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from tetdose._typing import BoolArray, FloatArray, IntArray
+from tetdose.errors import DoseError, OptionError
 from tetdose.image import Image
 
 #: Reference points handled per chunk (bounds the memory of the search).
@@ -89,24 +90,33 @@ def gamma_index(reference: Image, evaluated: Image, *, dose_percent: float = 3.0
     """Gamma of ``evaluated`` against ``reference`` (same grid; doses in Gy), module docstring.
 
     ``mask`` (numpy shape of the dose) restricts the reference points further, e.g. to one slice.
+    A threshold outside [0, 100) %, a reference dose that is zero (or NaN) everywhere, and a
+    selection holding no point are errors, so a pass rate is never NaN.
     """
     reference.grid.require_same(evaluated.grid, "the reference and evaluated doses")
-    if dose_percent <= 0 or dta_mm <= 0 or max_gamma <= 0 or interp_fraction < 1:
-        raise ValueError("dose_percent, dta_mm, max_gamma must be > 0 and interp_fraction ≥ 1")
+    _check_criteria(dose_percent, dta_mm, max_gamma, interp_fraction, threshold_percent)
     ref = np.asarray(reference.array, dtype=np.float64)
+    ev_arr = np.asarray(evaluated.array, dtype=np.float64)
+    for name, arr in (("reference", ref), ("evaluated", ev_arr)):
+        if not np.all(np.isfinite(arr)):
+            raise DoseError(f"the {name} dose holds {int((~np.isfinite(arr)).sum())} NaN or "
+                            "infinite voxels; recompute it")
     norm = float(ref.max()) if normalization_gy is None else float(normalization_gy)
-    if norm <= 0:
-        raise ValueError("the normalization dose is ≤ 0 (an empty reference dose?)")
+    if not norm > 0:
+        raise DoseError(f"the normalization dose is {norm:g} Gy: the reference dose is zero "
+                        "everywhere (did the beam miss?); nothing to compare")
     select = ref >= threshold_percent / 100.0 * norm
     if mask is not None:
         select &= np.asarray(mask, dtype=bool).reshape(ref.shape)
     points = np.flatnonzero(select)
+    if len(points) == 0:
+        raise DoseError(f"no reference point reaches the threshold of {threshold_percent:g} % of "
+                        f"{norm:.4g} Gy (inside the mask); lower the threshold")
     sampled = max_points is not None and len(points) > max_points
     if sampled:
         rng = np.random.default_rng(seed)
         points = np.sort(rng.choice(points, size=int(max_points), replace=False))
     offsets = _Offsets(reference.grid.spacing_mm, dta_mm, interp_fraction, max_gamma)
-    ev_arr = np.asarray(evaluated.array, dtype=np.float64)
     padded, strides = offsets.pad(ev_arr)
     ev_lo, ev_hi, corner = offsets.local_range(ev_arr, np.unravel_index(points, ref.shape))
     gamma2 = np.empty(len(points))
@@ -127,6 +137,19 @@ def gamma_index(reference: Image, evaluated: Image, *, dose_percent: float = 3.0
     gamma[points] = np.where(g <= max_gamma, g, np.inf)
     return GammaResult(gamma.reshape(ref.shape), float(dose_percent), float(dta_mm), bool(local),
                        float(threshold_percent), norm, float(max_gamma), bool(sampled))
+
+
+def _check_criteria(dose_percent: float, dta_mm: float, max_gamma: float, interp_fraction: int,
+                    threshold_percent: float) -> None:
+    for name, value in (("dose_percent", dose_percent), ("dta_mm", dta_mm),
+                        ("max_gamma", max_gamma)):
+        if not (np.isfinite(value) and value > 0):
+            raise OptionError(f"gamma {name} must be a finite number > 0, got {value}")
+    if not interp_fraction >= 1:
+        raise OptionError(f"gamma interp_fraction must be ≥ 1, got {interp_fraction}")
+    if not 0.0 <= threshold_percent < 100.0:
+        raise OptionError(f"the gamma threshold must lie in [0, 100) % of the normalization "
+                          f"dose (CLI: --threshold), got {threshold_percent:g}")
 
 
 class _Offsets:

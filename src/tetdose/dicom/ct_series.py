@@ -15,6 +15,7 @@ right-handed grid (same voxels in space, slice order reversed).
 from __future__ import annotations
 
 import hashlib
+import re
 import warnings
 from collections.abc import Sequence
 from pathlib import Path
@@ -40,6 +41,9 @@ from tetdose.errors import DicomError
 from tetdose.image import Image, ImageGrid
 
 _INT16 = np.iinfo(np.int16)
+#: File names of slices and phase folders, as written here.
+_SLICE_NAME = re.compile(r"CT\d{5}\.dcm")
+_PHASE_NAME = re.compile(r"phase_\d{3}(\.\d)?")
 #: Default display windows (centre, width) [HU]: soft tissue and lung.
 WINDOWS_HU = ((40.0, 400.0), (-600.0, 1500.0))
 
@@ -102,7 +106,9 @@ def write_ct_series(
     reference the new series joins; without it anonymous but valid ones are written. UIDs are
     derived from the voxel values, grid and these parameters (see :mod:`tetdose.dicom.uid`), so
     a rerun writes identical bytes. ``out_dir`` is replaced as a whole (``overwrite``) or not at
-    all. ``progress``: tqdm bar (None: only on a terminal).
+    all; a non-empty folder holding other files than a previous series is refused
+    (:class:`~tetdose.errors.OutputError`) unless the CLI's ``--overwrite`` is in force.
+    ``progress``: tqdm bar (None: only on a terminal).
     """
     image_hu = _check_image(image_hu, "image_hu")
     _check_target(out_dir, overwrite)
@@ -114,7 +120,7 @@ def write_ct_series(
         frame_of_reference_uid=frame_of_reference_uid,
         uid_prefix=uid_prefix,
     )
-    with atomic_write_dir(out_dir, overwrite=overwrite) as tmp:
+    with atomic_write_dir(out_dir, overwrite=overwrite, marker=False, owned=_is_series) as tmp:
         names = _write_series(
             pixels, tmp, ctx, series_number, series_description, temporal_position,
             n_temporal_positions, progress,
@@ -161,7 +167,7 @@ def write_ct_series_4d(
         frame_of_reference_uid=frame_of_reference_uid,
         uid_prefix=uid_prefix,
     )
-    with atomic_write_dir(out_dir, overwrite=overwrite) as tmp:
+    with atomic_write_dir(out_dir, overwrite=overwrite, marker=False, owned=_is_series_4d) as tmp:
         for i, (pix, pct, folder) in enumerate(zip(pixels, percents, folders, strict=True)):
             (tmp / folder).mkdir()
             _write_series(
@@ -174,6 +180,18 @@ def write_ct_series_4d(
 def _check_target(out_dir: str | Path, overwrite: bool) -> None:
     if Path(out_dir).exists() and not overwrite:
         raise DicomError(f"{out_dir} exists; remove it or pass overwrite=True to replace it")
+
+
+def _is_series(folder: Path) -> bool:
+    """True if ``folder`` holds only slice files as :func:`write_ct_series` names them, so it
+    may be replaced (a DICOM folder carries no marker file: DICOM tools read every file)."""
+    return all(p.is_file() and _SLICE_NAME.fullmatch(p.name) for p in folder.iterdir())
+
+
+def _is_series_4d(folder: Path) -> bool:
+    """True if ``folder`` holds only phase folders of slice files (a previous 4D-CT)."""
+    return all(p.is_dir() and _PHASE_NAME.fullmatch(p.name) and _is_series(p)
+               for p in folder.iterdir())
 
 
 def _phase_folder(percent: float) -> str:

@@ -12,9 +12,11 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.ndimage import maximum_filter, minimum_filter
 
+from tetdose._constants import MM3_PER_CM3
 from tetdose._typing import FloatArray
 from tetdose.calibration import HUCalibration
-from tetdose.image import Image, ImageGrid
+from tetdose.errors import OptionError
+from tetdose.image import Image, ImageGrid, check_ct_hu
 from tetdose.mapping.overlap import Overlap, compute_overlap, warn_if_uncovered
 from tetdose.mapping.solve import project_l2, solve_lsq
 from tetdose.mesh import TetMesh
@@ -54,7 +56,7 @@ class DensityMap:
 
 def tet_masses_g(mesh: TetMesh, density_g_cm3: FloatArray) -> FloatArray:
     """Eq. (3): m(T_k) = ¼ Vol(T_k) Σ ρ(vertices) [g] (volumes in mm³)."""
-    return mesh.volumes_mm3 * density_g_cm3[mesh.tets].mean(axis=1) / 1000.0
+    return mesh.volumes_mm3 * density_g_cm3[mesh.tets].mean(axis=1) / MM3_PER_CM3
 
 
 def map_density(mesh: TetMesh, ct_hu: Image, *, calibration: HUCalibration | None = None,
@@ -72,9 +74,12 @@ def map_density(mesh: TetMesh, ct_hu: Image, *, calibration: HUCalibration | Non
 
     A tetrahedron partly outside the CT gets the mean density of its covered part over its whole
     volume (a warning gives the uncovered fraction); one wholly outside all voxels is an error.
+    A CT that cannot hold HU (:func:`tetdose.image.check_ct_hu`) is refused. Only "lsq" can
+    return negative vertex densities (it undershoots at sharp edges, as the paper's method does).
     """
     if solver not in SOLVERS:
-        raise ValueError(f"solver must be one of {SOLVERS}, got {solver!r}")
+        raise OptionError(f"solver must be one of {SOLVERS}, got {solver!r}")
+    check_ct_hu(ct_hu)
     calibration = calibration or HUCalibration.schneider2000()
     mesh.check_cells()
     if by_region:
@@ -88,8 +93,8 @@ def map_density(mesh: TetMesh, ct_hu: Image, *, calibration: HUCalibration | Non
     pair_rho = rho_vox[ov.voxel]
     covered = ov.covered_volume_per_tet_mm3()
     ct_mass_tet = np.bincount(ov.tet, weights=ov.volume_mm3 * pair_rho,
-                              minlength=mesh.n_tets) / 1000.0
-    tet_mean = np.divide(ct_mass_tet * 1000.0, covered, out=np.zeros(mesh.n_tets),
+                              minlength=mesh.n_tets) / MM3_PER_CM3
+    tet_mean = np.divide(ct_mass_tet * MM3_PER_CM3, covered, out=np.zeros(mesh.n_tets),
                          where=covered > 0)
     if solver == "lsq":
         density = solve_lsq(mesh, tet_mean)

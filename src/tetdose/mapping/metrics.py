@@ -22,9 +22,12 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from tetdose._constants import MM3_PER_CM3
 from tetdose._typing import BoolArray
 from tetdose.calibration import HUCalibration
-from tetdose.image import Image
+from tetdose.errors import GeometryMismatchError, ImageError
+from tetdose.image import Image, check_ct_hu
+from tetdose.mapping import tet_masses_g
 from tetdose.mapping.overlap import Overlap, compute_overlap
 from tetdose.mesh import TetMesh
 from tetdose.voxelize import voxelize
@@ -71,6 +74,7 @@ def evaluate(ct_hu: Image, mesh: TetMesh, density_g_cm3: np.ndarray, *,
 
     ``roi`` is a boolean array of the CT's shape; default: voxels ≥ 50 % inside the mesh.
     """
+    check_ct_hu(ct_hu)
     calibration = calibration or HUCalibration.schneider2000()
     grid = ct_hu.grid
     ov = overlap if overlap is not None else compute_overlap(mesh, grid)
@@ -79,17 +83,18 @@ def evaluate(ct_hu: Image, mesh: TetMesh, density_g_cm3: np.ndarray, *,
     cover = ov.covered_volume_per_voxel_mm3().reshape(grid.shape) / grid.voxel_volume_mm3
     mask = (cover >= ROI_MIN_COVER) if roi is None else np.asarray(roi, dtype=bool)
     if mask.shape != grid.shape:
-        raise ValueError(f"roi shape {mask.shape} differs from the CT's {grid.shape}")
+        raise GeometryMismatchError(f"roi shape {mask.shape} differs from the CT's "
+                                    f"{grid.shape}; give a mask on the CT grid")
     if not mask.any():
-        raise ValueError("the region of interest holds no voxel")
+        raise ImageError("the region of interest holds no voxel; give a mask that overlaps "
+                         "the mesh")
     rho, rec = original.array[mask], recon.array[mask]
     err = np.abs(rho - rec)
     rel = 100.0 * err / rho
-    v_cm3 = grid.voxel_volume_mm3 / 1000.0
+    v_cm3 = grid.voxel_volume_mm3 / MM3_PER_CM3
     image_mass = float(rho.sum() * v_cm3)
-    tet_mass = mesh.volumes_mm3 * np.asarray(density_g_cm3)[mesh.tets].mean(axis=1) / 1000.0
-    mesh_mass = float(tet_mass.sum())
-    in_mesh = float(np.dot(ov.volume_mm3, original.array.ravel()[ov.voxel]) / 1000.0)
+    mesh_mass = float(tet_masses_g(mesh, np.asarray(density_g_cm3)).sum())
+    in_mesh = float(np.dot(ov.volume_mm3, original.array.ravel()[ov.voxel]) / MM3_PER_CM3)
     metrics = MappingMetrics(
         n_voxels=int(mask.sum()),
         image_mass_g=image_mass,

@@ -22,7 +22,7 @@ import scipy.sparse as sp
 from tqdm.auto import tqdm
 
 from tetdose._typing import FloatArray, IntArray
-from tetdose.errors import GeometryMismatchError
+from tetdose.errors import GeometryMismatchError, OptionError
 from tetdose.image import ImageGrid
 from tetdose.mapping import _montecarlo_kernels, _overlap_kernels, _tetsplit_kernels
 from tetdose.mesh import TetMesh
@@ -85,7 +85,10 @@ def compute_overlap(mesh: TetMesh, grid: ImageGrid, *, method: str = "exact",
     :class:`GeometryMismatchError` if no tetrahedron touches the image.
     """
     if method not in METHODS:
-        raise ValueError(f"overlap method must be one of {METHODS}, got {method!r}")
+        raise OptionError(f"overlap method must be one of {METHODS}, got {method!r}")
+    if method == "monte-carlo" and not int(n_samples) >= 1:
+        raise OptionError(f"n_samples (CLI: --samples) must be ≥ 1 point per tetrahedron, got "
+                          f"{n_samples}")
     u = grid.to_grid_frame(mesh.points_mm) / grid.spacing_mm
     u = np.ascontiguousarray(u)
     nx, ny, nz = grid.size

@@ -26,6 +26,7 @@ import scipy.sparse.linalg as spla
 from threadpoolctl import threadpool_limits
 
 from tetdose._typing import FloatArray, IntArray
+from tetdose.errors import SolverError
 from tetdose.mesh import TetMesh
 
 #: Relative residual of the conjugate-gradient solve of M·ρ = b.
@@ -92,7 +93,9 @@ def project_l2(mesh: TetMesh, rhs: FloatArray, x0: FloatArray | None = None,
     rho, info = spla.cg(m, rhs, x0=x0, rtol=CG_RTOL, atol=0.0, M=precond,
                         maxiter=10 * mesh.n_points)
     if info != 0:  # M is SPD and well conditioned: this does not happen on valid meshes
-        raise RuntimeError(f"conjugate gradients did not converge (info={info})")
+        raise SolverError(f"the L2 projection (conjugate gradients) did not converge "
+                          f"(info={info}); check the CT for NaN values and the mesh for "
+                          "degenerate tetrahedra")
     if bounds is None:
         return nonnegative_with_total(rho, lumped, float(rhs.sum()))
     return bounded_with_total(rho, lumped, bounds[0], bounds[1], float(rhs.sum()))
