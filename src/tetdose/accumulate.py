@@ -135,6 +135,27 @@ def accumulate_meshes(phases: Sequence[TetMesh], dose_gy: Sequence[FloatArray], 
                                 rtol=rtol)
 
 
+def accumulate_static_voxels(dose_gy: Sequence[FloatArray], mass_g: Sequence[FloatArray], *,
+                             weights: FloatArray | None = None,
+                             dose_std_gy: Sequence[FloatArray] | None = None
+                             ) -> tuple[FloatArray, FloatArray | None, FloatArray]:
+    """(dose, σ, mass) of voxels that do not move: D_j = Σ_p w_p D_pj m_pj / Σ_p w_p m_pj [Gy].
+
+    The voxel part of a hybrid 4D run on a static body (the reference CT outside the mesh): a
+    voxel's mass m_pj changes only as much of it as the moving mesh covers in phase p.
+    """
+    d, m = np.stack(dose_gy), np.stack(mass_g)
+    w = phase_weights(weights, len(d))
+    mass = np.einsum("p,pj->j", w, m)
+    dose = np.divide(np.einsum("p,pj->j", w, d * m), mass, out=np.zeros_like(mass),
+                     where=mass > 0)
+    std = None
+    if dose_std_gy is not None:
+        var = np.einsum("p,pj->j", w**2, (np.stack(dose_std_gy) * m) ** 2)
+        std = np.divide(np.sqrt(var), mass, out=np.zeros_like(mass), where=mass > 0)
+    return dose, std, mass
+
+
 def moved_points(reference: TetMesh, phase_points_mm: FloatArray, points_mm: FloatArray
                  ) -> FloatArray:
     """φ_p(x): reference points [mm] carried by the mesh motion to phase p (identity outside)."""
