@@ -53,7 +53,7 @@ def test_static_accumulation_equals_single_phase_in_distribution(static_run):
     assert np.abs(z).max() < 5.0
     assert abs(z.mean()) < 4.0 / np.sqrt(hot.sum()) + 0.3
     # Mass is conserved per tet in every phase, so the accumulation is a plain weighted mean.
-    np.testing.assert_allclose(acc.dose_gy, np.mean([r.dose_gy for r in run.results], axis=0),
+    np.testing.assert_allclose(acc.dose_gy, np.mean([r.mesh_part().dose_gy for r in run.results], axis=0),
                                rtol=1e-12)
 
 

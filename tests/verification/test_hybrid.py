@@ -202,6 +202,25 @@ def test_two_disjoint_cubes_photons_re_enter_the_mesh():
     _ledger_closes(res)
 
 
+def test_mesh_reaching_beyond_the_ct_meets_vacuum_there():
+    """Two cubes, the CT covers only cube A (and 10 mm of water around it): photons leave the
+    grid and still reach cube B beyond it; B gets what it gets with the world = mesh + twin."""
+    a = box_mesh((-150, -50, -50), (-50, 50, 50), (4, 4, 4))
+    b = box_mesh((50, -50, -50), (150, 50, 50), (4, 4, 4))
+    mesh = _union(a, b)
+    ct = _twin_grid(mesh, (-160, -60, -60), (-40, 60, 60), 10.0, lambda x, y, z: x < 1e9)
+    twin = _twin_grid(mesh, (-160, -60, -60), (150, 60, 60), 10.0,
+                      lambda x, y, z: (x < -40) | ((x > 50) & (np.abs(y) < 50) & (np.abs(z) < 50)))
+    plan = Plan((PhotonSource("point", [-100.0, 0, 0], [1, 0, 0], energies_mev=[1.0]),))
+    with pytest.warns(UserWarning, match="outside the CT grid"):
+        res = simulate(World(mesh=mesh, density=ct), plan, _settings(20_000, 0), progress=False)
+    ref = simulate(twin, plan, _settings(20_000, 1), progress=False)
+    got = _batch_sums(res, np.flatnonzero(mesh.centroids_mm[:, 0] > 0))
+    want = _batch_sums(ref, np.flatnonzero(twin.grid.voxel_centers_mm()[:, 0] > 0))
+    assert got[0] > 0 and _z(got, want) < 4, (got, want)
+    _ledger_closes(res)
+
+
 def test_concave_u_mesh_re_entry_matches_its_voxel_twin():
     """A U (three 40 mm columns, the middle one half height): a beam from the left arm across the
     notch deposits in the right arm what the voxel twin deposits there."""

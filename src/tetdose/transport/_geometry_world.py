@@ -10,8 +10,10 @@ lists the boundary triangles whose bounding box (grown by :data:`LIST_PAD_MM`) t
 built by :mod:`tetdose.transport.world`), and the voxel flight tests those triangles
 (Möller–Trumbore) on the stretch of the ray inside the voxel. The first *entering* hit
 (n·d < 0) hands the photon to the owner tet at the exact hit point. A photon leaving the mesh
-continues in the voxel holding its exit point or, without a grid, flies through vacuum to the
-mesh's next entering face (:func:`~._geometry_tet.first_boundary_hit`).
+continues in the voxel holding its exit point or, outside the grid, flies through vacuum to
+whichever comes first: the mesh's next entering face (:func:`~._geometry_tet.first_boundary_hit`)
+or the grid (a mesh may reach beyond the CT, e.g. a breathing phase; without a grid the mesh is
+alone in vacuum).
 """
 
 from typing import NamedTuple
@@ -24,12 +26,11 @@ from tetdose._typing import IntArray
 from tetdose.transport._geometry_tet import (
     BARY_TOL,
     TetGeometry,
-    enter_mesh,
     first_boundary_hit,
     ray_triangle,
     walk_to,
 )
-from tetdose.transport._geometry_voxel import VoxelGeometry, box_interval, enter_grid, voxel_index
+from tetdose.transport._geometry_voxel import VoxelGeometry, box_interval, voxel_index
 
 #: Growth of each boundary triangle's box when listing it per voxel [mm]: a triangle ending on a
 #: voxel plane is listed on both sides, so a hit that rounds onto the plane is never missed.
@@ -103,20 +104,36 @@ def voxel_cell_at(wg, x, y, z):
 
 
 @kernel
+def vacuum_flight(wg, x, y, z, u, v, w, t_min):
+    """From a point outside the grid and the mesh, the first cell along the ray: (cell, x, y, z);
+    cell −1 if the ray meets neither. Mesh faces nearer than ``t_min`` [mm] are ignored."""
+    best = np.inf
+    cell = -1
+    if wg.tet.planes.shape[0] > 0:
+        b, t, _ = first_boundary_hit(wg.tet, x, y, z, u, v, w, True, t_min)
+        if b >= 0:
+            best, cell = t, wg.tet.bnd_tet[b]
+    if wg.vox.density.shape[0] > 0:
+        g = wg.vox
+        t0, t1 = box_interval(g.lo, g.cell, g.n, x, y, z, u, v, w)
+        if t0 <= t1 and t1 > HIT_TOL_MM and t0 >= -HIT_TOL_MM and t0 < best:
+            t0 = max(t0, 0.0)
+            best = t0
+            cell = voxel_cell_at(wg, x + t0 * u, y + t0 * v, z + t0 * w)
+    if cell < 0:
+        return -1, x, y, z
+    return cell, x + best * u, y + best * v, z + best * w
+
+
+@kernel
 def start_cell(wg, x, y, z, u, v, w):
     """Where a source ray starts: (global cell, x, y, z, relocations); cell −1 if it misses.
 
-    With a grid the ray is moved to the grid box, then the mesh decides: if the first boundary
-    face ahead is a leaving one the point is inside the mesh (walk back to it), else it starts
-    in its voxel (the voxel flight finds the mesh ahead). Without a grid: vacuum to the mesh.
+    If the first mesh boundary face ahead is a leaving one the point is inside the mesh (walk
+    back to it); else, inside the grid it starts in its voxel (the voxel flight finds the mesh
+    ahead), outside it flies through vacuum to the grid or the mesh (:func:`vacuum_flight`).
     """
     m = wg.tet.planes.shape[0]
-    if wg.vox.density.shape[0] == 0:
-        k, x, y, z, n_reloc = enter_mesh(wg.tet, x, y, z, u, v, w)
-        return k, x, y, z, n_reloc
-    inside, x, y, z = enter_grid(wg.vox, x, y, z, u, v, w)
-    if not inside:
-        return -1, x, y, z, 0
     if m > 0:
         t0, t1 = box_interval(wg.tet.grid_lo, wg.tet.grid_cell, wg.tet.grid_n, x, y, z, u, v, w)
         if t0 <= t1 and t1 >= 0.0:
@@ -127,7 +144,12 @@ def start_cell(wg, x, y, z, u, v, w):
                                      z + t * w, -u, -v, -w, t)
                 if k >= 0:
                     return k, x, y, z, n_reloc
-    return voxel_cell_at(wg, x, y, z), x, y, z, 0
+    if wg.vox.density.shape[0] > 0:
+        cell = voxel_cell_at(wg, x, y, z)
+        if cell >= 0:
+            return cell, x, y, z, 0
+    cell, x, y, z = vacuum_flight(wg, x, y, z, u, v, w, -BARY_TOL)
+    return cell, x, y, z, 0
 
 
 @njit(cache=True)

@@ -36,7 +36,6 @@ from tetdose.transport._geometry_tet import (
     MAX_ZERO_STEPS,
     density_at,
     exit_face,
-    first_boundary_hit,
     next_tet,
     prefetch_neighbours,
     relocate,
@@ -46,6 +45,7 @@ from tetdose.transport._geometry_world import (
     HIT_TOL_MM,
     cell_material,
     mesh_hit_in_voxel,
+    vacuum_flight,
     voxel_cell_at,
     voxel_ijk,
 )
@@ -182,13 +182,13 @@ def flight(wg, xs, e, cell, x, y, z, u, v, w, tau, track, tally, counts):
     """Move a photon from global ``cell`` to its next interaction through mesh and voxels:
     (outcome, cell, x, y, z). τ carries over every switch.
 
-    Leaving the mesh, the photon continues in the voxel holding the exit point or, without a
-    grid, re-enters the mesh at the next entering face along the ray (vacuum in between). A
-    zero-length visit (entered and left at the same point) makes the next re-entry ignore hits
-    closer than :data:`HIT_TOL_MM`, so rounding at an edge cannot ping-pong.
+    Leaving the mesh, the photon continues in the voxel holding the exit point or, outside the
+    grid, flies through vacuum to the next entering mesh face or the grid; leaving the grid, to
+    a mesh part beyond it, if any (:func:`~._geometry_world.vacuum_flight`). A zero-length
+    visit (entered and left at the same point) makes the next re-entry ignore hits closer than
+    :data:`HIT_TOL_MM`, so rounding at an edge cannot ping-pong.
     """
     m_tets = wg.tet.planes.shape[0]
-    has_grid = wg.vox.density.shape[0] > 0
     t_min = -HIT_TOL_MM
     for _ in range(MAX_SWITCHES):
         if cell < m_tets:
@@ -198,22 +198,21 @@ def flight(wg, xs, e, cell, x, y, z, u, v, w, tau, track, tally, counts):
             if out != ESCAPES:
                 return out, k, x, y, z
             t_min = HIT_TOL_MM if (x == x0 and y == y0 and z == z0) else -HIT_TOL_MM
-            if has_grid:
-                cell = voxel_cell_at(wg, x, y, z)
-                if cell < 0:
-                    return ESCAPES, -1, x, y, z
-            else:
-                b, t, _ = first_boundary_hit(wg.tet, x, y, z, u, v, w, True, max(t_min, 0.0))
-                if b < 0:
-                    return ESCAPES, -1, x, y, z
-                cell = wg.tet.bnd_tet[b]
-                x, y, z = x + t * u, y + t * v, z + t * w
+            cell = voxel_cell_at(wg, x, y, z) if wg.vox.density.shape[0] > 0 else -1
+            if cell < 0:
+                cell, x, y, z = vacuum_flight(wg, x, y, z, u, v, w, max(t_min, 0.0))
         else:
             out, cell, x, y, z, tau = flight_voxel(wg, xs, e, cell - m_tets, x, y, z, u, v, w,
                                                    tau, t_min, track, tally, counts)
-            if out != ENTERS:
+            if out == INTERACTS:
                 return out, cell, x, y, z
             t_min = -HIT_TOL_MM
+            if out == ESCAPES:  # left the grid: vacuum, maybe a mesh part beyond the CT
+                cell = -1
+                if m_tets > 0:
+                    cell, x, y, z = vacuum_flight(wg, x, y, z, u, v, w, 0.0)
+        if cell < 0:
+            return ESCAPES, -1, x, y, z
         counts[C_SWITCHES] += 1
     return LOST, cell, x, y, z
 

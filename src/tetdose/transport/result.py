@@ -171,7 +171,7 @@ class DoseResult:
         if self.geometry != "hybrid" or self.on_grid is None:
             return self.voxel_part()
         og, m = self.on_grid, self.n_tets
-        m_k = np.bincount(og.tet, weights=og.mass_g, minlength=m)
+        m_k = self.mass_g[:m]  # a tet partly outside the grid keeps its outside share there
         frac = np.divide(og.mass_g, m_k[og.tet], out=np.zeros_like(og.mass_g),
                          where=m_k[og.tet] > 0)
         cols, inv = np.unique(og.voxel, return_inverse=True)

@@ -18,6 +18,7 @@ dose. The same overlaps put the mesh's energy on the grid for the combined dose 
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -25,7 +26,7 @@ import numpy as np
 
 from tetdose._constants import MM3_PER_CM3
 from tetdose._typing import FloatArray, IntArray
-from tetdose.errors import GeometryMismatchError, ImageError, MeshError, PlanError
+from tetdose.errors import ImageError, MeshError, PlanError
 from tetdose.image import Image, ImageGrid
 from tetdose.mesh import TetMesh
 from tetdose.transport._geometry_voxel import VoxelGeometry
@@ -38,8 +39,8 @@ MaterialRule = Callable[[FloatArray, "IntArray | None"], tuple[IntArray, list[st
 #: A voxel whose uncovered volume is below this fraction is wholly inside the mesh (round-off of
 #: the summed overlap volumes): no voxel mass, no voxel dose.
 COVERED_TOL_REL = 1e-9
-#: How far [mm, relative to the grid's extent] the mesh may reach beyond the grid's outer faces.
-OUTSIDE_TOL_REL = 1e-6
+#: Share of the mesh's mass outside the CT grid above which a hybrid run warns.
+OUTSIDE_WARN_FRACTION = 0.01
 
 
 @dataclass(frozen=True, eq=False)
@@ -48,8 +49,8 @@ class World:
     ``density`` (an :class:`Image` of g/cm³, e.g. the CT through :class:`HUCalibration`) and its
     optional ``labels`` image (region → material through the plan's ``[materials]``).
 
-    At least one of ``mesh`` and ``density`` is needed; with both, the mesh must lie inside the
-    image's grid.
+    At least one of ``mesh`` and ``density`` is needed. With both, a mesh reaching beyond the
+    image's grid meets vacuum there (a warning above 1 % of its mass).
     """
 
     mesh: TetMesh | None = None
@@ -146,15 +147,14 @@ def _voxel_geometry(grid: ImageGrid | None, rho: FloatArray, material: IntArray)
                          rho, np.ascontiguousarray(material, dtype=np.intp))
 
 
-def _check_inside(mesh: TetMesh, grid: ImageGrid) -> None:
-    q = grid.to_grid_frame(mesh.points_mm)
-    lo, hi = grid.bounds_grid_frame()
-    tol = OUTSIDE_TOL_REL * float(np.max(hi - lo))
-    beyond = float(max(np.max(lo - q.min(axis=0)), np.max(q.max(axis=0) - hi)))
-    if beyond > tol:
-        raise GeometryMismatchError(
-            f"the mesh reaches {beyond:.3g} mm beyond the CT grid; the mesh must lie inside "
-            "the CT (use a CT that covers the whole mesh, or crop the mesh)")
+def _warn_if_outside(mesh: TetMesh, on_grid: MeshOnGrid, tet_mass_g: FloatArray) -> None:
+    """Warn when more than :data:`OUTSIDE_WARN_FRACTION` of the mesh's mass lies outside the CT
+    (there the mesh is surrounded by vacuum, not tissue)."""
+    outside = 1.0 - on_grid.mass_g.sum() / max(float(tet_mass_g.sum()), 1e-300)
+    if outside > OUTSIDE_WARN_FRACTION:
+        warnings.warn(f"{100 * outside:.1f} % of the mesh's mass lies outside the CT grid, "
+                      "where the mesh is surrounded by vacuum; use a CT that covers the whole "
+                      "mesh", stacklevel=4)
 
 
 def _on_grid(mesh: TetMesh, grid: ImageGrid, rho: FloatArray) -> tuple[MeshOnGrid, FloatArray]:
@@ -184,7 +184,6 @@ def world_arrays(world: World, material_of: MaterialRule) -> WorldArrays:
     if mesh is not None:
         frame = None
         if grid is not None:
-            _check_inside(mesh, grid)
             frame = grid.to_grid_frame
         order = morton_order(mesh.centroids_mm)
         tet = mesh_geometry(mesh, rho_p, material[:m_tets], order, frame)
@@ -200,6 +199,8 @@ def world_arrays(world: World, material_of: MaterialRule) -> WorldArrays:
         uncovered[uncovered < COVERED_TOL_REL * grid.voxel_volume_mm3] = 0.0  # round-off
         vox_mass = rho_v * uncovered / MM3_PER_CM3
     tet_mass = (tet_rho * mesh.volumes_mm3 / MM3_PER_CM3) if mesh is not None else np.zeros(0)
+    if on_grid is not None:
+        _warn_if_outside(mesh, on_grid, tet_mass)
     return WorldArrays(WorldGeometry(tet, vox, *lists), names, material,
                        np.concatenate([tet_mass, vox_mass]), order, on_grid)
 
