@@ -24,7 +24,7 @@ def source_arrays(plan: Plan, settings: TransportSettings,
     Linac apertures stay in beam coordinates (along e1, e2), which a rigid ``to_frame`` keeps.
     """
     plan.require_resolved()
-    beams = plan.beams
+    beams = plan.sources
     for b in beams:
         e = np.asarray(b.energies_mev)
         if e.max() > E_MAX_MEV or e.min() < settings.energy_cutoff_mev:
