@@ -36,6 +36,7 @@ from tetdose.io import write_image, write_mesh
 from tetdose.mesh import TetMesh
 from tetdose.motion.ct4d import phase_densities
 from tetdose.motion.phases import PhaseSeries
+from tetdose.prescription import prescribe_dose4d
 from tetdose.transport import DoseResult, Plan, TransportSettings, simulate
 
 
@@ -98,6 +99,7 @@ def run_dose4d(series: PhaseSeries, plan: Plan, settings: TransportSettings, *,
         raise MeshError("the phases carry no density; run the density update first "
                         "(tetdose deform, or motion.update_series)")
     n = series.n_phases
+    plan = plan.resolved(series.reference)  # isocenter = "structure" → its planning centroid
     meshes = [series.mesh(k) for k in range(n)]
     density = None
     if ct_hu is not None:
@@ -121,7 +123,8 @@ def run_dose4d(series: PhaseSeries, plan: Plan, settings: TransportSettings, *,
                                     weights=series.time_weight,
                                     dose_std_gy=[r.dose_std_gy for r in results[:n]])
     voxel = None if density is None else _voxel_way(series, density, results[n:])
-    return Dose4D(series, results[:n], accumulated, voxel)
+    # Prescription (tetdose.prescription): one scale for every phase and accumulation.
+    return prescribe_dose4d(Dose4D(series, results[:n], accumulated, voxel), plan)
 
 
 def _voxel_way(series: PhaseSeries, density: list[Image],

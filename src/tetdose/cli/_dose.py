@@ -20,7 +20,11 @@ def add_args(parser: argparse.ArgumentParser) -> None:
     src = parser.add_mutually_exclusive_group(required=True)
     src.add_argument("--mesh", type=Path, help="mapped mesh (VTU with point_data density g/cm³)")
     src.add_argument("--ct", type=Path, help="CT image or DICOM folder (HU)")
-    parser.add_argument("--plan", type=Path, required=True, help="plan.toml (beams, materials)")
+    parser.add_argument("--plan", type=Path,
+                        help="plan.toml (beams, materials, regions, prescription)")
+    parser.add_argument("--rtplan", type=Path,
+                        help="DICOM RT Plan: its photon beams are added to --plan's (or used "
+                             "alone)")
     parser.add_argument("--histories", type=float, default=1e6, help="source photons (e.g. 1e7)")
     parser.add_argument("--seed", type=int, default=1, help="master random seed")
     parser.add_argument("--batches", type=int, default=10, help="independent batches (for σ)")
@@ -62,6 +66,24 @@ def _simulate(client: Any, geometry: Any, plan: Any, settings: Any, **kw: Any) -
     return simulate_distributed(client, geometry, plan, settings, **kw)
 
 
+def load_plan(plan_toml: Path | None, rtplan: Path | None) -> Any:  # noqa: ANN401
+    """``--plan`` and/or ``--rtplan``: the RT Plan's beams join the plan.toml's."""
+    from dataclasses import replace
+
+    from tetdose.dicom.rt_plan import read_rt_plan
+    from tetdose.transport import Plan
+
+    if plan_toml is None and rtplan is None:
+        raise PlanError("give --plan plan.toml, --rtplan plan.dcm, or both")
+    if plan_toml is None:
+        return read_rt_plan(rtplan)
+    plan = Plan.from_toml(plan_toml)
+    if rtplan is None:
+        return plan
+    return replace(plan, treatment_beams=plan.treatment_beams
+                   + read_rt_plan(rtplan).treatment_beams)
+
+
 def record_path(output: Path) -> Path:
     """``dose.json`` beside ``dose.vtu`` (all suffixes replaced, so dose.nii.gz → dose.json)."""
     return output.with_name(output.name.split(".")[0] + ".json")
@@ -75,21 +97,25 @@ def _std_path(output: Path) -> Path:
 def run(args: argparse.Namespace) -> int:
     from tetdose.calibration import HUCalibration
     from tetdose.io import read_image, read_mesh, write_image, write_mesh
-    from tetdose.transport import Plan, TransportSettings
+    from tetdose.prescription import prescribe_result
+    from tetdose.transport import TransportSettings
 
     if args.histories != int(args.histories) or args.histories < 1:
         raise PlanError(f"--histories must be a positive whole number, got {args.histories:g}")
-    plan = Plan.from_toml(args.plan)
+    plan = load_plan(args.plan, args.rtplan)
     settings = TransportSettings(int(args.histories), args.batches, args.seed,
                                  args.cutoff_mev, args.estimator)
     progress = False if args.quiet else None
-    extra: dict[str, object] = {"plan": str(args.plan), "dask": args.dask}
+    extra: dict[str, object] = {"plan": str(args.plan), "rtplan": str(args.rtplan),
+                                "dask": args.dask}
     if args.mesh is not None:
         if args.output.suffix.lower() not in (".vtu", ".vtk", ".xdmf", ".msh"):
             raise PlanError(f"with --mesh the output must be a mesh file (.vtu), got {args.output}")
         mesh = read_mesh(args.mesh)
+        plan = plan.resolved(mesh)
         with dask_context(args.dask) as client:
             result = _simulate(client, mesh, plan, settings, progress=progress)
+        result = prescribe_result(result, plan, mesh)
         write_mesh(args.output, result.to_mesh(mesh))
         extra.update(mesh=str(args.mesh), outputs=[str(args.output)])
     else:
@@ -98,8 +124,10 @@ def run(args: argparse.Namespace) -> int:
                else HUCalibration.schneider2000())
         density = ct.with_array(cal.density(ct.array).astype(np.float64))
         labels = read_image(args.labels) if args.labels else None
+        plan = plan.resolved(density, labels)
         with dask_context(args.dask) as client:
             result = _simulate(client, density, plan, settings, labels=labels, progress=progress)
+        result = prescribe_result(result, plan, density, labels)
         dose, dose_std = result.to_images()
         write_image(args.output, dose.with_array(dose.array.astype(np.float32)))
         write_image(_std_path(args.output), dose_std.with_array(dose_std.array.astype(np.float32)))
@@ -109,7 +137,8 @@ def run(args: argparse.Namespace) -> int:
     path = result.save_json(record_path(args.output))
     if not args.quiet:
         led = result.ledger
+        unit = result.extra.get("units", {}).get("dose", "Gy")
         print(f"dose: {result.n_histories} histories in {result.wall_s:.1f} s; max "
-              f"{result.dose_gy.max():.4g} Gy; deposited {led['deposited_mev']:.4g} MeV and "
+              f"{result.dose_gy.max():.4g} {unit}; deposited {led['deposited_mev']:.4g} MeV and "
               f"escaped {led['escaped_mev']:.4g} MeV per particle → {args.output}, {path}")
     return 0

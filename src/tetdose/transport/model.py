@@ -70,7 +70,7 @@ ESTIMATORS = ("analog", "track_length")
 #: Largest tally (n_batches × n_cells × 8 bytes) accepted by default.
 MAX_TALLY_BYTES = 2 * 1024**3
 _SECTIONS = {"beam", "materials", "normalization", "regions", "prescription", "patient",
-             "rtplan", "calibration"}
+             "rtplan"}
 _BEAM_KEYS = {"type", "energy_mev", "spectrum", "position_mm", "direction", "field_mm",
               "half_angle_deg", "weight", "field_x_direction"}
 
@@ -173,7 +173,6 @@ class Plan:
     treatment_beams: tuple[LinacBeam, ...] = ()
     regions: Mapping[str, int] = field(default_factory=dict)
     prescription: Prescription | None = None
-    calibration_gy_per_mu: float | None = None
     sources: tuple[PhotonSource, ...] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -224,6 +223,8 @@ class Plan:
 
         from tetdose.prescription import region_centroid_mm, region_label
 
+        if not self.unresolved:
+            return self
         linacs = tuple(
             b if b.isocenter_region is None else replace(
                 b, isocenter_mm=region_centroid_mm(
@@ -267,11 +268,9 @@ class Plan:
             linacs.extend(read_rt_plan(base_dir / str(data["rtplan"])).treatment_beams)
         norm = data.get("normalization", {})
         rx = data.get("prescription")
-        cal = data.get("calibration", {})
         return cls(simple, data.get("materials", {}), float(norm.get("particles", 1.0)),
                    tuple(linacs), data.get("regions", {}),
-                   Prescription.from_dict(rx) if rx is not None else None,
-                   float(cal["gy_per_mu"]) if "gy_per_mu" in cal else None)
+                   Prescription.from_dict(rx) if rx is not None else None)
 
 
 def _beam_from_dict(d: Mapping[str, Any], i: int, base_dir: Path) -> PhotonSource:
