@@ -68,8 +68,6 @@ def _simulate(client: Any, geometry: Any, plan: Any, settings: Any, **kw: Any) -
 
 def load_plan(plan_toml: Path | None, rtplan: Path | None) -> Any:  # noqa: ANN401
     """``--plan`` and/or ``--rtplan``: the RT Plan's beams join the plan.toml's."""
-    from dataclasses import replace
-
     from tetdose.dicom.rt_plan import read_rt_plan
     from tetdose.transport import Plan
 
@@ -77,11 +75,7 @@ def load_plan(plan_toml: Path | None, rtplan: Path | None) -> Any:  # noqa: ANN4
         raise PlanError("give --plan plan.toml, --rtplan plan.dcm, or both")
     if plan_toml is None:
         return read_rt_plan(rtplan)
-    plan = Plan.from_toml(plan_toml)
-    if rtplan is None:
-        return plan
-    return replace(plan, treatment_beams=plan.treatment_beams
-                   + read_rt_plan(rtplan).treatment_beams)
+    return Plan.from_toml(plan_toml, rtplan=rtplan)
 
 
 def record_path(output: Path) -> Path:

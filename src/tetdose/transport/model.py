@@ -234,8 +234,10 @@ class Plan:
         return replace(self, treatment_beams=linacs)
 
     @classmethod
-    def from_toml(cls, path: str | os.PathLike[str]) -> Plan:
-        """Read ``plan.toml`` (see module doc); spectrum paths are relative to the plan file."""
+    def from_toml(cls, path: str | os.PathLike[str],
+                  rtplan: str | os.PathLike[str] | None = None) -> Plan:
+        """Read ``plan.toml`` (see module doc); spectrum paths are relative to the plan file.
+        ``rtplan``: a DICOM RT Plan whose beams join the file's (``tetdose dose --rtplan``)."""
         path = Path(path)
         try:
             data = tomllib.loads(path.read_text())
@@ -243,10 +245,11 @@ class Plan:
             raise PlanError(f"cannot read plan {path}: {exc.strerror}") from exc
         except tomllib.TOMLDecodeError as exc:
             raise PlanError(f"{path} is not valid TOML: {exc}") from exc
-        return cls.from_dict(data, base_dir=path.parent)
+        return cls.from_dict(data, base_dir=path.parent, rtplan=rtplan)
 
     @classmethod
-    def from_dict(cls, data: Mapping[str, Any], base_dir: Path = Path(".")) -> Plan:
+    def from_dict(cls, data: Mapping[str, Any], base_dir: Path = Path("."),
+                  rtplan: str | os.PathLike[str] | None = None) -> Plan:
         from tetdose.prescription import Prescription
         from tetdose.transport.beams import linac_beam_from_dict
 
@@ -262,10 +265,12 @@ class Plan:
                        if b.get("type") != "linac")
         linacs = [linac_beam_from_dict(b, i, position) for i, b in enumerate(beams)
                   if b.get("type") == "linac"]
-        if "rtplan" in data:
+        dicom_plans = ([base_dir / str(data["rtplan"])] if "rtplan" in data else []) + (
+            [Path(rtplan)] if rtplan is not None else [])
+        for dcm in dicom_plans:
             from tetdose.dicom.rt_plan import read_rt_plan
 
-            linacs.extend(read_rt_plan(base_dir / str(data["rtplan"])).treatment_beams)
+            linacs.extend(read_rt_plan(dcm).treatment_beams)
         norm = data.get("normalization", {})
         rx = data.get("prescription")
         return cls(simple, data.get("materials", {}), float(norm.get("particles", 1.0)),
