@@ -66,8 +66,8 @@ def test_collimator_rotation_and_frame_handedness():
     for pos in ("HFS", "HFP", "FFS", "FFP"):
         ax = beam_axes(33, 21, 12, pos)
         np.testing.assert_allclose(ax @ ax.T, np.eye(3), atol=1e-12)
-        # HFS/FFP keep the DICOM frame's handedness, HFP/FFS... all four are proper rotations of
-        # the IEC frames, and the IEC b frame is right-handed, as is DICOM LPS.
+        # Every patient position is a proper rotation between two right-handed frames (IEC b
+        # and DICOM LPS): a mirror in any table would give det = −1.
         assert np.linalg.det(ax) == pytest.approx(1.0)
 
 
