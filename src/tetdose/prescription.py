@@ -97,33 +97,54 @@ def region_label(name: str | int, regions: Mapping[str, int]) -> int:
                         f"[regions] {name} = LABEL to the plan") from None
 
 
-def region_cells(geometry: Any, labels: Any, label: int) -> np.ndarray:  # noqa: ANN401
-    """Boolean mask of the cells of region ``label``: tets of a TetMesh (``region``), or voxels
-    of a label image (beside a density image)."""
+def _parts(geometry: Any, labels: Any) -> tuple[Any, Any, int]:  # noqa: ANN401
+    """(mesh or None, label image or None, number of voxel cells) of a TetMesh, a density Image
+    (with ``labels``) or a transport world (duck-typed: ``mesh``, ``density``, ``labels``; its
+    cells are the mesh's tetrahedra, then the grid's voxels)."""
     from tetdose.mesh import TetMesh
 
     if isinstance(geometry, TetMesh):
-        if geometry.region is None:
+        return geometry, None, 0
+    if hasattr(geometry, "mesh") and hasattr(geometry, "density"):
+        n_vox = 0 if geometry.density is None else geometry.density.grid.n_voxels
+        return geometry.mesh, geometry.labels, n_vox
+    return None, labels, geometry.grid.n_voxels
+
+
+def region_cells(geometry: Any, labels: Any, label: int) -> np.ndarray:  # noqa: ANN401
+    """Boolean mask of the cells of region ``label``: tets of a mesh (cell_data ``region``),
+    voxels of a label image (beside a density image), or both in a world (tets first)."""
+    mesh, lab, n_vox = _parts(geometry, labels)
+    masks = []
+    if mesh is not None:
+        if mesh.region is None:
             raise PlanError("the mesh has no region labels; structures need cell_data region")
-        mask = np.asarray(geometry.region) == label
-    else:
-        if labels is None:
+        masks.append(np.asarray(mesh.region) == label)
+    if n_vox:
+        if lab is None and mesh is None:
             raise PlanError("a structure on a CT needs a label image (tetdose dose --labels)")
-        mask = np.asarray(labels.array).reshape(-1) == label
+        masks.append(np.zeros(n_vox, dtype=bool) if lab is None
+                     else np.asarray(lab.array).reshape(-1) == label)
+    mask = np.concatenate(masks)
     if not mask.any():
         raise PlanError(f"region label {label} has no cells in this geometry")
     return mask
 
 
 def region_centroid_mm(geometry: Any, labels: Any, label: int) -> FloatArray:  # noqa: ANN401
-    """Volume-weighted centroid [mm] of region ``label`` (tet centroids or voxel centres)."""
-    from tetdose.mesh import TetMesh
-
-    mask = region_cells(geometry, labels, label)
-    if isinstance(geometry, TetMesh):
-        return np.average(geometry.centroids_mm[mask], axis=0, weights=geometry.volumes_mm3[mask])
-    idx = np.argwhere(mask.reshape(labels.grid.shape))[:, ::-1]  # (k, j, i) → (i, j, k)
-    return labels.grid.index_to_physical(idx.astype(np.float64)).mean(axis=0)
+    """Volume-weighted centroid [mm] of region ``label``: its tetrahedra if the geometry has a
+    mesh holding it, else its voxel centres in the label image."""
+    mesh, lab, _ = _parts(geometry, labels)
+    if mesh is not None and mesh.region is not None and np.any(mesh.region == label):
+        sel = np.asarray(mesh.region) == label
+        return np.average(mesh.centroids_mm[sel], axis=0, weights=mesh.volumes_mm3[sel])
+    if lab is None:
+        region_cells(geometry, labels, label)  # raises the reason
+        raise PlanError(f"region label {label} is not in the mesh")
+    idx = np.argwhere(np.asarray(lab.array) == label)[:, ::-1]  # (k, j, i) → (i, j, k)
+    if len(idx) == 0:
+        raise PlanError(f"region label {label} has no cells in this geometry")
+    return lab.grid.index_to_physical(idx.astype(np.float64)).mean(axis=0)
 
 
 def scale_for(rx: Prescription, dose_gy: FloatArray, mass_g: FloatArray,
@@ -173,10 +194,20 @@ def prescribe_dose4d(d4: Dose4D, plan: Any) -> Dose4D:  # noqa: ANN401
                   dose_std_gy=None if acc.dose_std_gy is None else acc.dose_std_gy * s)
     voxel = d4.voxel
     if voxel is not None:
-        voxel = replace(voxel, results=[scaled_result(r, s, rx) for r in voxel.results],
-                        direct_mapping=voxel.direct_mapping.with_array(
-                            voxel.direct_mapping.array * s),
-                        energy_mass_transfer=voxel.energy_mass_transfer.with_array(
-                            voxel.energy_mass_transfer.array * s))
+        voxel = replace(_scaled_images(voxel, s),
+                        results=[scaled_result(r, s, rx) for r in voxel.results])
+    parts = {"body": _scaled_images(d4.body, s)} if getattr(d4, "body", None) else {}
     return replace(d4, results=[scaled_result(r, s, rx) for r in d4.results], accumulated=acc,
-                   voxel=voxel)
+                   voxel=voxel, **parts)
+
+
+#: Dose images of the 4D results (voxel way, hybrid body part) that a prescription scales.
+_DOSE_IMAGES = ("direct_mapping", "energy_mass_transfer", "accumulated", "accumulated_std",
+                "combined")
+
+
+def _scaled_images(obj: Any, s: float) -> Any:  # noqa: ANN401
+    """``obj`` (a dataclass) with each dose image of :data:`_DOSE_IMAGES` it has times ``s``."""
+    changes = {k: getattr(obj, k).with_array(getattr(obj, k).array * s) for k in _DOSE_IMAGES
+               if hasattr(obj, k)}
+    return replace(obj, **changes)

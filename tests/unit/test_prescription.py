@@ -102,3 +102,25 @@ def test_prescribe_result_needs_the_structure(water_ct):
     with pytest.raises(PlanError, match=r"\[regions\]"):
         prescribe_result(None, plan, read_image(water_ct / "ct.nrrd"),
                          read_image(water_ct / "labels.nrrd"))
+
+
+def test_structure_cells_and_centroid_on_a_mesh_and_a_world():
+    from types import SimpleNamespace
+
+    from tetdose.mesh import TetMesh
+    from tetdose.prescription import region_cells, region_centroid_mm
+
+    pts = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [3, 3, 3]], dtype=float)
+    mesh = TetMesh(pts, np.array([[0, 1, 2, 3], [1, 2, 3, 4]]), np.array([3, 3]))
+    vols, cents = mesh.volumes_mm3, mesh.centroids_mm
+    np.testing.assert_allclose(region_centroid_mm(mesh, None, 3),
+                               (vols[:, None] * cents).sum(0) / vols.sum())
+    grid = ImageGrid(np.zeros(3), np.ones(3), np.eye(3), (4, 4, 4))
+    lab = np.zeros(grid.shape, dtype=np.int16)
+    lab[0, 0, 3] = 3
+    world = SimpleNamespace(mesh=mesh, density=Image(np.ones(grid.shape), grid),
+                            labels=Image(lab, grid))
+    mask = region_cells(world, None, 3)  # the world's cells: tets first, then voxels
+    assert mask.shape == (2 + 64,) and mask[:2].all() and mask[2:].sum() == 1 and mask[2 + 3]
+    with pytest.raises(PlanError, match="no cells"):
+        region_cells(mesh, None, 7)

@@ -124,3 +124,26 @@ def test_written_plan_passes_dciodvfy(tmp_path):
     out = subprocess.run(["dciodvfy", str(path)], capture_output=True, text=True)
     errors = [ln for ln in (out.stdout + out.stderr).splitlines() if ln.startswith("Error")]
     assert errors == []
+
+
+def test_arc_is_sampled_at_its_control_points_and_attributes_carry_forward(tmp_path):
+    """A 3-control-point arc 0° → 20° → 40° (weights 0, 0.25, 1) becomes two segments at the
+    mean angles 10° and 30° with ΔW 0.25 and 0.75; jaws and isocentre given only at the first
+    control point apply to all."""
+    path = write_rt_plan(_plan(), tmp_path / "plan.dcm")
+    ds = pydicom.dcmread(path)
+    beam = ds.BeamSequence[0]
+    cps = beam.ControlPointSequence
+    cps[1].GantryAngle, cps[1].CumulativeMetersetWeight = "20", "0.25"
+    del cps[1].BeamLimitingDevicePositionSequence
+    extra = pydicom.Dataset()
+    extra.ControlPointIndex, extra.GantryAngle, extra.CumulativeMetersetWeight = 2, "40", "1"
+    cps.append(extra)
+    beam.NumberOfControlPoints, beam.BeamType = 3, "DYNAMIC"
+    ds.save_as(tmp_path / "arc.dcm")
+    arc = read_rt_plan(tmp_path / "arc.dcm").treatment_beams[0]
+    assert [s.gantry_deg for s in arc.segments] == pytest.approx([10.0, 30.0])
+    assert [s.meterset_fraction for s in arc.segments] == pytest.approx([0.25, 0.75])
+    for s in arc.segments:
+        np.testing.assert_allclose(s.jaws_mm, [-50, 50, -40, 40])
+    np.testing.assert_allclose(arc.isocenter_mm, ISO)
