@@ -164,3 +164,17 @@ def test_isocentre_by_structure_name_needs_the_geometry():
     with pytest.raises(PlanError, match=r"\[regions\]"):
         Plan.from_dict({"beam": [{"type": "linac", "spectrum": "6MV", "isocenter": "gtv"}]}
                        ).resolved(Image(np.ones(grid.shape), grid), labels)
+
+
+def test_named_spectrum_in_simple_beams_and_linac_errors():
+    plan = Plan.from_dict({"beam": [{"type": "parallel", "spectrum": "Co60",
+                                     "position_mm": [0, 0, -100], "field_mm": [10, 10]}]})
+    np.testing.assert_allclose(plan.sources[0].energies_mev, CO60_LINES_MEV)
+    with pytest.raises(PlanError, match="exactly one of isocenter_mm"):
+        Plan.from_dict({"beam": [{"type": "linac", "spectrum": "6MV"}]})
+    with pytest.raises(PlanError, match="no opening"):
+        Plan.from_dict({"beam": [{"type": "linac", "spectrum": "6MV", "isocenter_mm": [0, 0, 0],
+                                  "jaws_mm": [10, -10, -5, 5]}]})
+    with pytest.raises(PlanError, match=r"\[patient\] position .HFDL. is unknown"):
+        Plan.from_dict({"patient": {"position": "HFDL"}, "beam": [
+            {"type": "linac", "spectrum": "6MV", "isocenter_mm": [0, 0, 0]}]})
