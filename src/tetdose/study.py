@@ -50,6 +50,7 @@ from tetdose.phantoms import make_phantom, write_phantom
 from tetdose.prescription import Prescription
 from tetdose.transport import Plan, TransportSettings
 from tetdose.transport.beams import ControlPoint, LinacBeam
+from tetdose.transport.buildup import build_up_fraction, build_up_mask
 from tetdose.transport.spectra import build_up_depth_mm
 
 #: Structures reported in the DVH and mapping tables (phantom label names).
@@ -235,7 +236,10 @@ class _Run:
                 "resolution); RT Dose written")
 
     def _dvh(self, ref_mesh, emt: Image, ddm: Image) -> dict[str, Any]:  # noqa: ANN001
-        curves, table = {}, {}
+        curves, table, in_build_up = {}, {}, {}
+        ct = self.ph.ct
+        build_up = build_up_mask(ct.with_array(HUCalibration.schneider2000().density(ct.array)),
+                                 build_up_depth_mm("6MV"))
         for name in STRUCTURES:
             label = self.label_of.get(name)
             mask = self.ph.labels.array == label
@@ -245,7 +249,10 @@ class _Run:
                   image_dvh(emt, mask, name="voxel EMT"), image_dvh(ddm, mask, name="voxel DDM")]
             curves[name] = hs
             table[name] = {h.name: h.metrics() for h in hs}
-        self.figures.append(dvh_figure(curves, unit=_UNIT, build_up_mm=build_up_depth_mm("6MV")))
+            in_build_up[name] = build_up_fraction(build_up, mask)
+        self.summary["build_up_fraction"] = in_build_up
+        self.figures.append(dvh_figure(curves, unit=_UNIT, build_up_mm=build_up_depth_mm("6MV"),
+                                       build_up_fraction=in_build_up))
         return table
 
     def _profiles(self, ref_mesh, emt: Image, ddm: Image) -> None:  # noqa: ANN001

@@ -178,3 +178,21 @@ def test_named_spectrum_in_simple_beams_and_linac_errors():
     with pytest.raises(PlanError, match=r"\[patient\] position .HFDL. is unknown"):
         Plan.from_dict({"patient": {"position": "HFDL"}, "beam": [
             {"type": "linac", "spectrum": "6MV", "isocenter_mm": [0, 0, 0]}]})
+
+
+def test_build_up_mask_is_the_skin_layer_of_depth_dmax():
+    from tetdose.image import Image, ImageGrid
+    from tetdose.transport.buildup import build_up_fraction, build_up_mask
+
+    grid = ImageGrid(np.zeros(3), np.full(3, 2.0), np.eye(3), (40, 40, 40))
+    rho = np.zeros(grid.shape)
+    rho[5:35, 5:35, 5:35] = 1.0  # a 60 mm water cube, skin at 10 mm from the grid edge
+    mask = build_up_mask(Image(rho, grid), 15.0)
+    # Voxel centres at 1, 3, …, 59 mm from the cube's face: those < 15 mm deep are 7 layers.
+    line = mask[20, 20, 5:35]
+    assert line.tolist() == [True] * 7 + [False] * 16 + [True] * 7
+    assert not mask[rho == 0].any()
+    core = np.zeros(grid.shape, dtype=bool)
+    core[15:25, 15:25, 15:25] = True
+    assert build_up_fraction(mask, core) == 0.0
+    assert build_up_fraction(mask, rho > 0) == pytest.approx(1 - (16 / 30) ** 3)

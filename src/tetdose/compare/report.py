@@ -96,20 +96,27 @@ def gamma_figure(result: GammaResult, *, k: int) -> Figure:
 
 
 def dvh_figure(curves: Mapping[str, Sequence[DVH]], *, unit: str = PER_PHOTON_UNIT,
-               build_up_mm: float | None = None) -> Figure:
+               build_up_mm: float | None = None,
+               build_up_fraction: Mapping[str, float] | None = None) -> Figure:
     """Cumulative DVHs, one colour per structure, one line style per dose source.
 
     ``unit``: "Gy" for prescribed doses; ``build_up_mm``: the beams' build-up depth d_max, noted
-    in the caption (cells shallower than it report kerma, which exceeds the dose there)."""
+    in the caption (cells shallower than it report kerma, which exceeds the dose there), and
+    ``build_up_fraction`` per structure (:mod:`tetdose.transport.buildup`) in the legend."""
+    build_up_fraction = build_up_fraction or {}
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(7, 4.5))
     top = max(float(h.dose_gy[0]) for hs in curves.values() for h in hs)
     levels = np.linspace(0.0, 1.05 * top, 200)
-    data: dict[str, Any] = {"dose_gy": levels, "unit": unit}
+    data: dict[str, Any] = {"dose_gy": levels, "unit": unit,
+                            "build_up_fraction": dict(build_up_fraction)}
     for colour, (structure, hs) in enumerate(curves.items()):
         for style, h in zip(("-", "--", ":"), hs, strict=False):
             v = h.curve(levels)
-            ax.plot(levels, v, style, color=f"C{colour % 10}", label=f"{structure} ({h.name})")
+            frac = build_up_fraction.get(structure, 0.0)
+            note = f", {100 * frac:.0f} % in build-up" if frac > 0 else ""
+            ax.plot(levels, v, style, color=f"C{colour % 10}",
+                    label=f"{structure} ({h.name}){note}")
             data[f"{structure}/{h.name}"] = {"volume_percent": v, **h.metrics()}
     ax.set_xlabel(f"dose [{unit}]")
     ax.set_ylabel("volume [%]")
