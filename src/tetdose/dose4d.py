@@ -50,6 +50,7 @@ from tetdose.mesh import TetMesh
 from tetdose.motion.ct4d import phase_densities
 from tetdose.motion.dvf import DisplacementField
 from tetdose.motion.phases import PhaseSeries
+from tetdose.prescription import prescribe_dose4d
 from tetdose.transport import DoseResult, Plan, TransportSettings, World, simulate
 
 
@@ -134,6 +135,7 @@ def run_dose4d(series: PhaseSeries, plan: Plan, settings: TransportSettings, *,
         raise MeshError("the phases carry no density; run the density update first "
                         "(tetdose deform, or motion.update_series)")
     n = series.n_phases
+    plan = plan.resolved(series.reference)  # isocenter = "structure" → its planning centroid
     meshes = [series.mesh(k) for k in range(n)]
     density = None
     if ct_hu is not None or phase_ct is not None:
@@ -164,7 +166,8 @@ def run_dose4d(series: PhaseSeries, plan: Plan, settings: TransportSettings, *,
     if density is not None:
         voxel = _voxel_way(series, density, results[n:])
         body = _body_way(series, accumulated, results[:n])
-    return Dose4D(series, results[:n], accumulated, voxel, body)
+    # Prescription (tetdose.prescription): one scale for every phase and accumulation.
+    return prescribe_dose4d(Dose4D(series, results[:n], accumulated, voxel, body), plan)
 
 
 def _bodies(series: PhaseSeries, ct_hu: Image | None, phase_ct: list[Image] | None,

@@ -51,14 +51,18 @@ from tetdose.mesh import TetMesh
 from tetdose.motion import BreathingModel, update_series
 from tetdose.motion.ct4d import phase_densities, to_hu, write_4dct
 from tetdose.phantoms import Phantom, make_phantom, mesh_labels, write_phantom
-from tetdose.transport import PhotonSource, Plan, TransportSettings
+from tetdose.prescription import Prescription
+from tetdose.transport import Plan, TransportSettings
+from tetdose.transport.beams import ControlPoint, LinacBeam
+from tetdose.transport.buildup import build_up_fraction, build_up_mask
+from tetdose.transport.spectra import build_up_depth_mm
 
-#: Co-60 lines [MeV] and their relative weights.
-CO60_MEV = (1.1732, 1.3325)
 #: Structures reported in the DVH and mapping tables (phantom label names).
 STRUCTURES = ("tumour", "lung", "liver", "vessels", "bone")
 #: What moves with breathing and is meshed (phantom label names); the rest of the body is CT.
 MOVING = ("lung", "vessels", "tumour")
+#: Dose unit of the study's figures: the plan is prescribed (see :func:`_plan`).
+_UNIT = "Gy per fraction"
 
 
 @dataclass(frozen=True)
@@ -188,7 +192,7 @@ class _Run:
     def dose(self) -> str:
         tumour = self.mesh.centroids_mm[self.mesh.region == self.label_of["tumour"]]
         self.target_mm = tumour.mean(axis=0)
-        plan = _plan(self.target_mm, self.c)
+        plan = self.plan = _plan(self.target_mm, self.c, self.label_of["tumour"])
         settings = TransportSettings(n_histories=self.c.histories, n_batches=self.c.batches,
                                      seed=self.c.seed)
         self.d4 = run_dose4d(self.series, plan, settings, ct_hu=self.ph.ct,
@@ -231,7 +235,7 @@ class _Run:
             self.figures.append(gamma_figure(g, k=k))
         self.figures.append(dose_slices_figure(d4.body.combined, emt,
                                                labels=("organ mesh + body accumulated",
-                                                       "voxel EMT"), k=k))
+                                                       "voxel EMT"), k=k, unit=_UNIT))
         g = gamma_index(emt, d4.body.combined, dose_percent=3.0, dta_mm=3.0)
         gammas["accumulated, whole body: energy/mass transfer vs organ mesh + body 3%/3mm "
                "global"] = g.summary()
@@ -239,13 +243,16 @@ class _Run:
         self.summary["dvh"] = self._dvh(ref_mesh, emt, ddm)
         self._profiles(ref_mesh, emt, ddm)
         write_rt_dose(d4.body.combined, self.out / "rtdose.dcm",
-                      reference_ct=self.out / "ct4d" / "dicom" / "phase_000")
+                      reference_ct=self.out / "ct4d" / "dicom" / "phase_000", plan=self.plan)
         matched = gammas["static phase, matched resolution: voxel vs mesh 3%/3mm global"]
         return (f"gamma 3%/3mm static phase {matched['pass_rate_percent']:.1f} % (matched "
                 "resolution); RT Dose written")
 
     def _dvh(self, ref_mesh, emt: Image, ddm: Image) -> dict[str, Any]:  # noqa: ANN001
-        curves, table = {}, {}
+        curves, table, in_build_up = {}, {}, {}
+        ct = self.ph.ct
+        build_up = build_up_mask(ct.with_array(HUCalibration.schneider2000().density(ct.array)),
+                                 build_up_depth_mm("6MV"))
         for name in STRUCTURES:
             label = self.label_of.get(name)
             mask = self.ph.labels.array == label
@@ -255,7 +262,10 @@ class _Run:
                   image_dvh(emt, mask, name="voxel EMT"), image_dvh(ddm, mask, name="voxel DDM")]
             curves[name] = hs
             table[name] = {h.name: h.metrics() for h in hs}
-        self.figures.append(dvh_figure(curves))
+            in_build_up[name] = build_up_fraction(build_up, mask)
+        self.summary["build_up_fraction"] = in_build_up
+        self.figures.append(dvh_figure(curves, unit=_UNIT, build_up_mm=build_up_depth_mm("6MV"),
+                                       build_up_fraction=in_build_up))
         return table
 
     def _profiles(self, ref_mesh, emt: Image, ddm: Image) -> None:  # noqa: ANN001
@@ -264,19 +274,20 @@ class _Run:
         self.figures.append(profiles_figure(
             [mesh_profile(ref_mesh, self.d4.accumulated.dose_gy, a, b, label="mesh"),
              image_profile(emt, a, b, label="voxel EMT"),
-             image_profile(ddm, a, b, label="voxel DDM")], name="profile_lr_through_tumour"))
+             image_profile(ddm, a, b, label="voxel DDM")], name="profile_lr_through_tumour",
+            unit=_UNIT))
 
 
-def _plan(target_mm: np.ndarray, c: StudyConfig) -> Plan:
-    """Co-60 parallel fields in the axial plane, aimed at the target from several angles."""
-    beams = []
-    for angle in np.radians(c.beam_angles_deg):
-        direction = np.array([np.sin(angle), -np.cos(angle), 0.0])
-        beams.append(PhotonSource("parallel", target_mm - 600.0 * direction, direction,
-                                  energies_mev=CO60_MEV, line_weights=(1.0, 1.0),
-                                  field_mm=(c.field_mm, c.field_mm),
-                                  field_x_direction=(0.0, 0.0, 1.0)))
-    return Plan(tuple(beams))
+def _plan(target_mm: np.ndarray, c: StudyConfig, tumour_label: int) -> Plan:
+    """6 MV linac fields (IEC gantry angles, HFS) at the tumour centroid, square jaws of
+    ``field_mm`` at the isocentre, prescribed 2 Gy per fraction to the tumour's D95 (30
+    fractions): every dose of the study is then in Gy per fraction (tetdose.prescription)."""
+    half = c.field_mm / 2.0
+    beams = tuple(LinacBeam(f"G{g:g}", "6MV", target_mm,
+                            (ControlPoint(g, 0.0, 0.0, (-half, half, -half, half)),))
+                  for g in c.beam_angles_deg)
+    return Plan(treatment_beams=beams, regions={"tumour": tumour_label},
+                prescription=Prescription("tumour", 2.0, "D95", 30))
 
 
 def _phases_figure(images: list[Image], percent: np.ndarray) -> Figure:

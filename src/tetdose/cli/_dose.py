@@ -29,7 +29,11 @@ def add_args(parser: argparse.ArgumentParser) -> None:
                              "part of the patient that is meshed")
     parser.add_argument("--ct", type=Path,
                         help="CT image or DICOM folder (HU); with --mesh: the rest of the body")
-    parser.add_argument("--plan", type=Path, required=True, help="plan.toml (beams, materials)")
+    parser.add_argument("--plan", type=Path,
+                        help="plan.toml (beams, materials, regions, prescription)")
+    parser.add_argument("--rtplan", type=Path,
+                        help="DICOM RT Plan: its photon beams are added to --plan's (or used "
+                             "alone)")
     parser.add_argument("--histories", type=float, default=1e6, help="source photons (e.g. 1e7)")
     parser.add_argument("--seed", type=int, default=1, help="master random seed")
     parser.add_argument("--batches", type=int, default=10, help="independent batches (for σ)")
@@ -71,6 +75,18 @@ def _simulate(client: Any, geometry: Any, plan: Any, settings: Any, **kw: Any) -
     return simulate_distributed(client, geometry, plan, settings, **kw)
 
 
+def load_plan(plan_toml: Path | None, rtplan: Path | None) -> Any:  # noqa: ANN401
+    """``--plan`` and/or ``--rtplan``: the RT Plan's beams join the plan.toml's."""
+    from tetdose.dicom.rt_plan import read_rt_plan
+    from tetdose.transport import Plan
+
+    if plan_toml is None and rtplan is None:
+        raise PlanError("give --plan plan.toml, --rtplan plan.dcm, or both")
+    if plan_toml is None:
+        return read_rt_plan(rtplan)
+    return Plan.from_toml(plan_toml, rtplan=rtplan)
+
+
 def record_path(output: Path) -> Path:
     """``dose.json`` beside ``dose.vtu`` (all suffixes replaced, so dose.nii.gz → dose.json)."""
     return output.with_name(output.name.split(".")[0] + ".json")
@@ -95,7 +111,8 @@ def _write_images(result: Any, output: Path) -> list[str]:  # noqa: ANN401
 
 def run(args: argparse.Namespace) -> int:
     from tetdose.io import read_image, read_mesh, write_image, write_mesh
-    from tetdose.transport import Plan, TransportSettings, World
+    from tetdose.prescription import prescribe_result
+    from tetdose.transport import TransportSettings, World
 
     if args.mesh is None and args.ct is None:
         raise PlanError("give --mesh (a mapped mesh), --ct (a CT), or both (the mesh inside "
@@ -109,11 +126,12 @@ def run(args: argparse.Namespace) -> int:
         raise PlanError(f"with --ct alone the output must be an image (.nrrd), got {args.output}")
     if args.labels is not None and args.ct is None:
         raise PlanError("--labels labels the CT's voxels; give --ct too")
-    plan = Plan.from_toml(args.plan)
+    plan = load_plan(args.plan, args.rtplan)
     settings = TransportSettings(int(args.histories), args.batches, args.seed,
                                  args.cutoff_mev, args.estimator)
     progress = False if args.quiet else None
-    extra: dict[str, object] = {"plan": str(args.plan), "dask": args.dask}
+    extra: dict[str, object] = {"plan": str(args.plan), "rtplan": str(args.rtplan),
+                                "dask": args.dask}
     mesh = read_mesh(args.mesh) if args.mesh is not None else None
     density = labels = None
     if args.ct is not None:
@@ -123,8 +141,10 @@ def run(args: argparse.Namespace) -> int:
         labels = read_image(args.labels) if args.labels else None
         extra.update(ct=str(args.ct), calibration=cal.name)
     world = World(mesh=mesh, density=density, labels=labels)
+    plan = plan.resolved(world)
     with dask_context(args.dask) as client:
         result = _simulate(client, world, plan, settings, progress=progress)
+    result = prescribe_result(result, plan, world)
     outputs: list[str] = []
     if mesh is not None:
         write_mesh(args.output, result.to_mesh(mesh))
@@ -142,7 +162,8 @@ def run(args: argparse.Namespace) -> int:
     path = result.save_json(record_path(args.output))
     if not args.quiet:
         led = result.ledger
+        unit = result.extra.get("units", {}).get("dose", "Gy")
         print(f"dose ({world.kind}): {result.n_histories} histories in {result.wall_s:.1f} s; "
-              f"max {result.dose_gy.max():.4g} Gy; deposited {led['deposited_mev']:.4g} MeV and "
+              f"max {result.dose_gy.max():.4g} {unit}; deposited {led['deposited_mev']:.4g} MeV and "
               f"escaped {led['escaped_mev']:.4g} MeV per particle → {', '.join(outputs)}, {path}")
     return 0

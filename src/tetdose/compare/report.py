@@ -25,6 +25,7 @@ from tetdose.compare.dvh import DVH
 from tetdose.compare.gamma import GammaResult
 from tetdose.compare.profiles import Profile
 from tetdose.image import Image
+from tetdose.prescription import PER_PHOTON_UNIT
 
 
 @dataclass
@@ -56,8 +57,10 @@ def pyplot() -> Any:
 
 
 def dose_slices_figure(a: Image, b: Image, *, labels: tuple[str, str] = ("mesh", "voxel"),
-                       k: int | None = None) -> Figure:
-    """Axial slice k (default: through the maximum of ``a``) of both doses and a − b."""
+                       k: int | None = None, unit: str = PER_PHOTON_UNIT) -> Figure:
+    """Axial slice k (default: through the maximum of ``a``) of both doses and a − b.
+
+    ``unit``: "Gy" for prescribed doses, else doses are per source photon (the default)."""
     if k is None:
         k = int(np.unravel_index(int(np.argmax(a.array)), a.array.shape)[0])
     sa, sb = np.asarray(a.array[k], float), np.asarray(b.array[k], float)
@@ -71,11 +74,11 @@ def dose_slices_figure(a: Image, b: Image, *, labels: tuple[str, str] = ("mesh",
                                (axes[2], diff, f"{labels[0]} − {labels[1]}",
                                 {"cmap": "RdBu_r", "vmin": -lim, "vmax": lim})):
         im = ax.imshow(img, origin="lower", **kw)
-        ax.set_title(f"{title} [Gy], slice k={k}")
+        ax.set_title(f"{title} [{unit}], slice k={k}", fontsize=9)
         fig.colorbar(im, ax=ax, shrink=0.8)
     data = {"k": k, labels[0]: sa, labels[1]: sb, "difference_gy": diff}
-    return Figure(f"dose_slice_k{k}", f"Axial slice {k}: doses and difference [Gy]",
-                  render_png(fig), data)
+    return Figure(f"dose_slice_k{k}", f"Axial slice {k}: doses and difference [{unit}]",
+                  render_png(fig), {**data, "unit": unit})
 
 
 def gamma_figure(result: GammaResult, *, k: int) -> Figure:
@@ -92,25 +95,41 @@ def gamma_figure(result: GammaResult, *, k: int) -> Figure:
                   {"k": k, "gamma": g, **result.summary()})
 
 
-def dvh_figure(curves: Mapping[str, Sequence[DVH]]) -> Figure:
-    """Cumulative DVHs, one colour per structure, one line style per dose source."""
+def dvh_figure(curves: Mapping[str, Sequence[DVH]], *, unit: str = PER_PHOTON_UNIT,
+               build_up_mm: float | None = None,
+               build_up_fraction: Mapping[str, float] | None = None) -> Figure:
+    """Cumulative DVHs, one colour per structure, one line style per dose source.
+
+    ``unit``: "Gy" for prescribed doses; ``build_up_mm``: the beams' build-up depth d_max, noted
+    in the caption (cells shallower than it report kerma, which exceeds the dose there), and
+    ``build_up_fraction`` per structure (:mod:`tetdose.transport.buildup`) in the legend."""
+    build_up_fraction = build_up_fraction or {}
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(7, 4.5))
     top = max(float(h.dose_gy[0]) for hs in curves.values() for h in hs)
     levels = np.linspace(0.0, 1.05 * top, 200)
-    data: dict[str, Any] = {"dose_gy": levels}
+    data: dict[str, Any] = {"dose_gy": levels, "unit": unit,
+                            "build_up_fraction": dict(build_up_fraction)}
     for colour, (structure, hs) in enumerate(curves.items()):
         for style, h in zip(("-", "--", ":"), hs, strict=False):
             v = h.curve(levels)
-            ax.plot(levels, v, style, color=f"C{colour % 10}", label=f"{structure} ({h.name})")
+            frac = build_up_fraction.get(structure, 0.0)
+            note = f", {100 * frac:.0f} % in build-up" if frac > 0 else ""
+            ax.plot(levels, v, style, color=f"C{colour % 10}",
+                    label=f"{structure} ({h.name}){note}")
             data[f"{structure}/{h.name}"] = {"volume_percent": v, **h.metrics()}
-    ax.set_xlabel("dose [Gy]")
+    ax.set_xlabel(f"dose [{unit}]")
     ax.set_ylabel("volume [%]")
     ax.legend(fontsize=7)
-    return Figure("dvh", "Cumulative dose–volume histograms", render_png(fig), data)
+    caption = "Cumulative dose–volume histograms"
+    if build_up_mm is not None:
+        caption += (f"; structures within {build_up_mm:g} mm of the skin lie in the build-up "
+                    "region, where kerma (what is scored) exceeds the absorbed dose")
+    return Figure("dvh", caption, render_png(fig), data)
 
 
-def profiles_figure(profiles: Sequence[Profile], *, name: str = "profile") -> Figure:
+def profiles_figure(profiles: Sequence[Profile], *, name: str = "profile",
+                    unit: str = PER_PHOTON_UNIT) -> Figure:
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(7, 4))
     data: dict[str, Any] = {}
@@ -119,9 +138,9 @@ def profiles_figure(profiles: Sequence[Profile], *, name: str = "profile") -> Fi
         data[p.label] = {"distance_mm": p.distance_mm, "dose_gy": p.dose_gy,
                          "start_mm": p.points_mm[0], "end_mm": p.points_mm[-1]}
     ax.set_xlabel("distance along the line [mm]")
-    ax.set_ylabel("dose [Gy]")
+    ax.set_ylabel(f"dose [{unit}]")
     ax.legend()
-    return Figure(name, f"Dose profile {name}", render_png(fig), data)
+    return Figure(name, f"Dose profile {name} [{unit}]", render_png(fig), {**data, "unit": unit})
 
 
 def _jsonable(x: Any) -> Any:

@@ -16,7 +16,9 @@ DoseSummationType PLAN requires a Referenced RT Plan Sequence (C.8.8.3). A dose 
 tetdose comes from a ``plan.toml``, not from a DICOM plan, so unless the caller names an existing
 plan's SOP Instance UID, a minimal RT Plan (A.20: RT General Plan with RTPlanGeometry
 TREATMENT_DEVICE and approval UNAPPROVED, no beams) is written beside the dose
-(``<name>.rtplan.dcm``) and referenced, so the pair is self-consistent in any archive.
+(``<name>.rtplan.dcm``) and referenced, so the pair is self-consistent in any archive. Given the
+plan's linac beams, that RT Plan holds them (beams, control points, fraction scheme:
+:mod:`tetdose.dicom.rt_plan`).
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from __future__ import annotations
 import warnings
 from contextlib import ExitStack
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from pydicom.dataset import Dataset
@@ -44,6 +47,9 @@ from tetdose.dicom._modules import (
 from tetdose.dicom.uid import DEFAULT_PREFIX, derive_uid, image_digest
 from tetdose.errors import DicomError
 from tetdose.image import Image, ImageGrid
+
+if TYPE_CHECKING:
+    from tetdose.transport.model import Plan
 
 #: Summation types written; others need fraction/beam references tetdose does not have.
 SUMMATION_TYPES = ("PLAN",)
@@ -68,13 +74,19 @@ def write_rt_dose(
     series_number: int = 2000,
     series_description: str = "tetdose Monte Carlo dose",
     uid_prefix: str | None = DEFAULT_PREFIX,
+    plan: Plan | None = None,
 ) -> Path:
     """Write ``dose_gy`` [Gy] as an RT Dose file at ``path`` (atomically); return ``path``.
+
+    ``plan``: with linac beams, the RT Plan written beside the dose holds them
+    (:mod:`tetdose.dicom.rt_plan`) instead of the beamless placeholder.
 
     ``reference_ct``: the CT series folder whose patient, study and Frame of Reference UID the
     dose shares (or pass ``frame_of_reference_uid``/``study_instance_uid``). Without
     ``referenced_rt_plan_uid`` a minimal RT Plan is also written, at :func:`rt_plan_path`.
     """
+    from tetdose.dicom.rt_plan import plan_dataset
+
     dose_gy = _checked_dose(dose_gy)
     if summation_type not in SUMMATION_TYPES:
         raise DicomError(f"DoseSummationType {summation_type!r} is not supported; use 'PLAN'")
@@ -104,7 +116,11 @@ def write_rt_dose(
         if plan_uid is None:
             plan_uid = derive_uid(series_uid, "plan", prefix=uid_prefix)
             plan_tmp = stack.enter_context(atomic_write_file(rt_plan_path(path)))
-            _write_plan_stub(plan_tmp, ctx, plan_uid, series_number + 1)
+            if plan is not None and plan.treatment_beams:
+                save(plan_dataset(plan, ctx, plan_uid, series_number + 1), plan_tmp,
+                     RTPlanStorage, plan_uid)
+            else:
+                _write_plan_stub(plan_tmp, ctx, plan_uid, series_number + 1)
         dose_tmp = stack.enter_context(atomic_write_file(path))
         ds = _dose_dataset(dose_gy, ctx, series_uid, series_number, series_description, bits)
         ds.DoseSummationType = summation_type

@@ -4,8 +4,9 @@ and run settings. Frozen dataclasses validated on construction (errors are :clas
 ``plan.toml`` (parsed with :mod:`tomllib`)::
 
     [[beam]]
-    type = "point"              # "pencil" | "parallel" | "point"
-    energy_mev = 1.0            # or spectrum = "spectrum.csv" (columns energy_mev, weight)
+    type = "point"              # "pencil" | "parallel" | "point" | "linac" (see below)
+    energy_mev = 1.0            # or spectrum = "6MV" | "10MV" | "15MV" | "Co60" (named, see
+                                # transport.spectra) | "spectrum.csv" (columns energy_mev, weight)
     position_mm = [0.0, 0.0, 0.0]
     direction = [0.0, 0.0, 1.0] # pencil / parallel axis, cone axis
     field_mm = [100.0, 100.0]   # parallel: field size (x along e1, y along e2)
@@ -15,6 +16,29 @@ and run settings. Frozen dataclasses validated on construction (errors are :clas
     1 = "water"                 # region label → material name
     [normalization]
     particles = 1.0             # dose reported for this many source particles
+
+    [[beam]]                    # a treatment beam (IEC 61217, see transport.beams)
+    type = "linac"
+    name = "AP"
+    spectrum = "6MV"
+    isocenter_mm = [0.0, 0.0, 0.0]   # or isocenter = "tumour" ([regions] name or a label)
+    gantry_deg = 0.0
+    collimator_deg = 0.0
+    couch_deg = 0.0
+    sad_mm = 1000.0
+    jaws_mm = [-50.0, 50.0, -50.0, 50.0]    # x1, x2, y1, y2 at the isocentre plane
+    mlc = { boundaries_mm = [...], positions_mm = [...] }   # optional MLCX (as in RT Plan)
+    weight = 1.0                # meterset (MU) of the beam
+    [patient]
+    position = "HFS"            # "HFS" | "HFP" | "FFS" | "FFP"
+    [regions]
+    tumour = 1                  # structure name → region label
+    [prescription]              # scales every dose to Gy (tetdose.prescription)
+    structure = "tumour"
+    dose_gy = 2.0               # per fraction
+    metric = "D95"              # "D95" | "D50" | "mean"
+    fractions = 30
+    # rtplan = "plan.dcm"       # beams of a DICOM RT Plan (tetdose.dicom.rt_plan), added
 
 Field axes: ``e1`` is the unit vector of ``field_x_direction`` (default: the patient axis least
 aligned with the beam) made orthogonal to the beam axis; ``e2 = axis × e1``.
@@ -29,17 +53,24 @@ import tomllib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from tetdose._typing import FloatArray
 from tetdose.errors import PlanError
+from tetdose.transport.beams import LinacBeam
+from tetdose.transport.spectra import is_named, named_spectrum
 
-SOURCE_KINDS = ("pencil", "parallel", "point")
+if TYPE_CHECKING:
+    from tetdose.prescription import Prescription
+
+SOURCE_KINDS = ("pencil", "parallel", "point", "linac")
 ESTIMATORS = ("analog", "track_length")
 #: Largest tally (n_batches × n_cells × 8 bytes) accepted by default.
 MAX_TALLY_BYTES = 2 * 1024**3
+_SECTIONS = {"beam", "materials", "normalization", "regions", "prescription", "patient",
+             "rtplan"}
 _BEAM_KEYS = {"type", "energy_mev", "spectrum", "position_mm", "direction", "field_mm",
               "half_angle_deg", "weight", "field_x_direction"}
 
@@ -70,6 +101,8 @@ class PhotonSource:
     half_angle_deg: float = 180.0
     weight: float = 1.0
     field_x_direction: Sequence[float] | None = None
+    sad_mm: float = 0.0
+    aperture_mm: FloatArray | None = None
     e1: FloatArray = field(init=False, repr=False)
     e2: FloatArray = field(init=False, repr=False)
 
@@ -106,7 +139,18 @@ class PhotonSource:
                           ("line_weights", wl), ("field_mm", fld)):
             object.__setattr__(self, name, val)
         object.__setattr__(self, "e1", e1 / np.linalg.norm(e1))
-        object.__setattr__(self, "e2", np.cross(axis, self.e1))
+        if self.kind == "linac":
+            # IEC 61217 beam limiting device frame: X_b = e1, Y_b = e2, beam along −Z_b.
+            object.__setattr__(self, "e2", np.cross(self.e1, axis))
+            rects = np.asarray(self.aperture_mm if self.aperture_mm is not None else
+                               np.zeros((0, 4)), dtype=np.float64).reshape(-1, 4)
+            if (len(rects) == 0 or np.any(rects[:, 1] <= rects[:, 0])
+                    or np.any(rects[:, 3] <= rects[:, 2]) or not self.sad_mm > 0.0):
+                raise PlanError("a linac source needs sad_mm > 0 and open aperture rectangles "
+                                "[x1, x2, y1, y2]")
+            object.__setattr__(self, "aperture_mm", rects)
+        else:
+            object.__setattr__(self, "e2", np.cross(axis, self.e1))
 
     @property
     def mean_energy_mev(self) -> float:
@@ -116,16 +160,29 @@ class PhotonSource:
 
 @dataclass(frozen=True, eq=False)
 class Plan:
-    """Beams, region → material map and dose normalization (source particles)."""
+    """Beams, treatment (linac) beams, region names and materials, normalization, prescription.
 
-    beams: tuple[PhotonSource, ...]
+    ``beams``: simple sources (pencil, parallel, point); ``treatment_beams``: :class:`LinacBeam`
+    (from ``type = "linac"`` tables or an RT Plan); :attr:`sources` is both, flattened (one
+    point source per segment). ``regions``: structure name → region label (``[regions]``).
+    """
+
+    beams: tuple[PhotonSource, ...] = ()
     materials: Mapping[int, str] = field(default_factory=dict)
     particles: float = 1.0
+    treatment_beams: tuple[LinacBeam, ...] = ()
+    regions: Mapping[str, int] = field(default_factory=dict)
+    prescription: Prescription | None = None
+    sources: tuple[PhotonSource, ...] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
-        beams = tuple(self.beams)
-        if not beams or not all(isinstance(b, PhotonSource) for b in beams):
-            raise PlanError("a plan needs at least one beam ([[beam]] table in plan.toml)")
+        beams, linacs = tuple(self.beams), tuple(self.treatment_beams)
+        if not all(isinstance(b, PhotonSource) for b in beams) or not all(
+                isinstance(b, LinacBeam) for b in linacs):
+            raise PlanError("plan beams must be PhotonSource and treatment_beams LinacBeam")
+        if not beams and not linacs:
+            raise PlanError("a plan needs at least one beam ([[beam]] table in plan.toml, "
+                            "or rtplan = \"plan.dcm\")")
         if not (math.isfinite(self.particles) and self.particles > 0):
             raise PlanError(f"normalization particles must be positive, got {self.particles}")
         mats: dict[int, str] = {}
@@ -135,12 +192,52 @@ class Plan:
             except (TypeError, ValueError):
                 raise PlanError(f"[materials] keys must be integer region labels, got {key!r}"
                                 ) from None
-        object.__setattr__(self, "beams", beams)
-        object.__setattr__(self, "materials", mats)
+        try:
+            regions = {str(k): int(v) for k, v in dict(self.regions).items()}
+        except (TypeError, ValueError):
+            raise PlanError("[regions] maps structure names to integer labels, e.g. tumour = 3"
+                            ) from None
+        flat = list(beams)
+        for lb in linacs:
+            if lb.isocenter_region is None:
+                flat.extend(lb.sources())
+        for k, v in (("beams", beams), ("treatment_beams", linacs), ("materials", mats),
+                     ("regions", regions), ("sources", tuple(flat))):
+            object.__setattr__(self, k, v)
+
+    @property
+    def unresolved(self) -> list[str]:
+        """Structures named as isocentres and not yet located (see :meth:`resolved`)."""
+        return [str(b.isocenter_region) for b in self.treatment_beams
+                if b.isocenter_region is not None]
+
+    def require_resolved(self) -> None:
+        if self.unresolved:
+            raise PlanError(f"isocenter = {self.unresolved[0]!r} needs the geometry: resolve it "
+                            "with plan.resolved(geometry, labels) (tetdose dose does)")
+
+    def resolved(self, geometry: Any, labels: Any = None) -> Plan:  # noqa: ANN401
+        """This plan with every ``isocenter = "name"`` replaced by that region's centroid [mm]
+        in ``geometry`` (TetMesh regions, or a label image beside a density image)."""
+        from dataclasses import replace
+
+        from tetdose.prescription import region_centroid_mm, region_label
+
+        if not self.unresolved:
+            return self
+        linacs = tuple(
+            b if b.isocenter_region is None else replace(
+                b, isocenter_mm=region_centroid_mm(
+                    geometry, labels, region_label(b.isocenter_region, self.regions)),
+                isocenter_region=None)
+            for b in self.treatment_beams)
+        return replace(self, treatment_beams=linacs)
 
     @classmethod
-    def from_toml(cls, path: str | os.PathLike[str]) -> Plan:
-        """Read ``plan.toml`` (see module doc); spectrum paths are relative to the plan file."""
+    def from_toml(cls, path: str | os.PathLike[str],
+                  rtplan: str | os.PathLike[str] | None = None) -> Plan:
+        """Read ``plan.toml`` (see module doc); spectrum paths are relative to the plan file.
+        ``rtplan``: a DICOM RT Plan whose beams join the file's (``tetdose dose --rtplan``)."""
         path = Path(path)
         try:
             data = tomllib.loads(path.read_text())
@@ -148,20 +245,37 @@ class Plan:
             raise PlanError(f"cannot read plan {path}: {exc.strerror}") from exc
         except tomllib.TOMLDecodeError as exc:
             raise PlanError(f"{path} is not valid TOML: {exc}") from exc
-        return cls.from_dict(data, base_dir=path.parent)
+        return cls.from_dict(data, base_dir=path.parent, rtplan=rtplan)
 
     @classmethod
-    def from_dict(cls, data: Mapping[str, Any], base_dir: Path = Path(".")) -> Plan:
-        unknown = set(data) - {"beam", "materials", "normalization"}
+    def from_dict(cls, data: Mapping[str, Any], base_dir: Path = Path("."),
+                  rtplan: str | os.PathLike[str] | None = None) -> Plan:
+        from tetdose.prescription import Prescription
+        from tetdose.transport.beams import linac_beam_from_dict
+
+        unknown = set(data) - _SECTIONS
         if unknown:
-            raise PlanError(f"unknown plan section(s) {sorted(unknown)}; "
-                            "use [[beam]], [materials], [normalization]")
+            raise PlanError(f"unknown plan section(s) {sorted(unknown)}; use "
+                            f"{', '.join(sorted(_SECTIONS))}")
         beams = data.get("beam", [])
         if not isinstance(beams, list):
             raise PlanError("beams must be given as [[beam]] tables")
+        position = str(data.get("patient", {}).get("position", "HFS"))
+        simple = tuple(_beam_from_dict(b, i, base_dir) for i, b in enumerate(beams)
+                       if b.get("type") != "linac")
+        linacs = [linac_beam_from_dict(b, i, position) for i, b in enumerate(beams)
+                  if b.get("type") == "linac"]
+        dicom_plans = ([base_dir / str(data["rtplan"])] if "rtplan" in data else []) + (
+            [Path(rtplan)] if rtplan is not None else [])
+        for dcm in dicom_plans:
+            from tetdose.dicom.rt_plan import read_rt_plan
+
+            linacs.extend(read_rt_plan(dcm).treatment_beams)
         norm = data.get("normalization", {})
-        return cls(tuple(_beam_from_dict(b, i, base_dir) for i, b in enumerate(beams)),
-                   data.get("materials", {}), float(norm.get("particles", 1.0)))
+        rx = data.get("prescription")
+        return cls(simple, data.get("materials", {}), float(norm.get("particles", 1.0)),
+                   tuple(linacs), data.get("regions", {}),
+                   Prescription.from_dict(rx) if rx is not None else None)
 
 
 def _beam_from_dict(d: Mapping[str, Any], i: int, base_dir: Path) -> PhotonSource:
@@ -173,7 +287,9 @@ def _beam_from_dict(d: Mapping[str, Any], i: int, base_dir: Path) -> PhotonSourc
         raise PlanError(f"{where}: give exactly one of energy_mev or spectrum")
     if "type" not in d or "position_mm" not in d:
         raise PlanError(f"{where}: type and position_mm are required")
-    if "spectrum" in d:
+    if "spectrum" in d and is_named(str(d["spectrum"])):
+        energies, weights = named_spectrum(str(d["spectrum"]))
+    elif "spectrum" in d:
         energies, weights = read_spectrum(base_dir / d["spectrum"])
     else:
         energies, weights = np.array([float(d["energy_mev"])]), np.ones(1)

@@ -8,19 +8,23 @@ import numpy as np
 
 from tetdose._typing import FloatArray
 from tetdose.errors import PlanError
-from tetdose.transport._source import PARALLEL, PENCIL, POINT, SourceArrays
-from tetdose.transport.model import Plan, TransportSettings
+from tetdose.transport._source import LINAC, PARALLEL, PENCIL, POINT, SourceArrays
+from tetdose.transport.model import PhotonSource, Plan, TransportSettings
 
 #: Highest photon energy the interaction tables cover [MeV].
 E_MAX_MEV = 20.0
-_KINDS = {"pencil": PENCIL, "parallel": PARALLEL, "point": POINT}
+_KINDS = {"pencil": PENCIL, "parallel": PARALLEL, "point": POINT, "linac": LINAC}
 
 
 def source_arrays(plan: Plan, settings: TransportSettings,
                   to_frame: Callable[[FloatArray, bool], FloatArray] | None = None
                   ) -> SourceArrays:
-    """Flatten the beams (optionally into a grid frame: ``to_frame(points, is_direction)``)."""
-    beams = plan.beams
+    """Flatten the beams (optionally into a grid frame: ``to_frame(points, is_direction)``).
+
+    Linac apertures stay in beam coordinates (along e1, e2), which a rigid ``to_frame`` keeps.
+    """
+    plan.require_resolved()
+    beams = plan.sources
     for b in beams:
         e = np.asarray(b.energies_mev)
         if e.max() > E_MAX_MEV or e.min() < settings.energy_cutoff_mev:
@@ -40,4 +44,18 @@ def source_arrays(plan: Plan, settings: TransportSettings,
         beam_cdf=np.cumsum(w) / w.sum(),
         spec_start=np.concatenate([[0], np.cumsum([len(x) for x in lines])]).astype(np.intp),
         spec_energy=np.concatenate([b.energies_mev for b in beams]).astype(np.float64),
-        spec_cdf=np.concatenate([np.cumsum(x) for x in lines]).astype(np.float64))
+        spec_cdf=np.concatenate([np.cumsum(x) for x in lines]).astype(np.float64),
+        **_apertures(beams))
+
+
+def _apertures(beams: tuple[PhotonSource, ...]) -> dict[str, np.ndarray]:
+    """sad, rect_start, rect, rect_cdf (by area within each beam) of the linac beams."""
+    rects = [b.aperture_mm if b.kind == "linac" else np.zeros((0, 4)) for b in beams]
+    cdfs = []
+    for r in rects:
+        area = (r[:, 1] - r[:, 0]) * (r[:, 3] - r[:, 2])
+        cdfs.append(np.cumsum(area) / area.sum() if len(r) else area)
+    return {"sad": np.array([b.sad_mm for b in beams], dtype=np.float64),
+            "rect_start": np.concatenate([[0], np.cumsum([len(r) for r in rects])]).astype(np.intp),
+            "rect": np.ascontiguousarray(np.concatenate(rects), dtype=np.float64).reshape(-1, 4),
+            "rect_cdf": np.concatenate(cdfs).astype(np.float64)}
