@@ -9,7 +9,7 @@ import pytest
 
 from tetdose.errors import PlanError, TetdoseError
 from tetdose.image import Image
-from tetdose.transport import PhotonSource, Plan, TransportSettings, simulate
+from tetdose.transport import PhotonSource, Plan, TransportSettings, World, simulate
 from tetdose.transport.distributed import _distributed, simulate_distributed
 
 from helpers import box_mesh, grid_for
@@ -60,6 +60,17 @@ def test_voxel_geometry_on_a_cluster_matches_local(client):
     image = Image(np.ones(grid.shape), grid)
     _same(simulate_distributed(client, image, PLAN, SETTINGS, progress=False),
           simulate(image, PLAN, SETTINGS, progress=False))
+
+
+def test_hybrid_world_on_a_cluster_matches_local(client):
+    """A mesh inside a CT (the hybrid world) gives the same bits on the cluster."""
+    grid = grid_for((-30, -30, -10), (30, 30, 50), (5.0, 5.0, 5.0))
+    image = Image(np.full(grid.shape, 0.9), grid)
+    world = World(mesh=_phases()[0], density=image)
+    remote = simulate_distributed(client, world, PLAN, SETTINGS, progress=False)
+    local = simulate(world, PLAN, SETTINGS, progress=False)
+    assert local.geometry == "hybrid" and local.record()["mesh_voxel_switches"] > 0
+    _same(remote, local)
 
 
 def test_bad_arguments_raise(client):

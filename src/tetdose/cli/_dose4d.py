@@ -8,7 +8,9 @@ from pathlib import Path
 from tetdose.cli._common import add_calibration_arg, calibration_from
 from tetdose.cli._dose import add_dask_arg, dask_context
 from tetdose.dose4d import run_dose4d, write_dose4d
+from tetdose.errors import OptionError
 from tetdose.io import read_image
+from tetdose.motion.dvf import read_dvf
 from tetdose.motion.phases import PhaseSeries
 from tetdose.transport import Plan, TransportSettings
 
@@ -22,8 +24,12 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--batches", type=int, default=10, help="independent batches (for σ)")
     p.add_argument("--estimator", choices=("track_length", "analog"), default="track_length")
     p.add_argument("--like", type=Path,
-                   help="reference CT: also compute voxel doses on the virtual 4D-CT and "
-                        "accumulate them by direct dose mapping and energy/mass transfer")
+                   help="reference CT: every phase's mesh runs inside the phase's body (the "
+                        "hybrid world), and the voxel-only dose on the same body is accumulated "
+                        "by direct dose mapping and energy/mass transfer")
+    p.add_argument("--dvf", nargs="+", type=Path, metavar="IMAGE",
+                   help="with --like: the phases' displacement fields (as for `tetdose deform "
+                        "--dvf`): the reference CT warped by each is the body outside the mesh")
     p.add_argument("-o", "--output", type=Path, required=True, help="output folder")
     add_calibration_arg(p)
     add_dask_arg(p)
@@ -37,9 +43,12 @@ def run(args: argparse.Namespace) -> int:
     settings = TransportSettings(n_histories=int(args.histories), n_batches=args.batches,
                                  seed=args.seed, estimator=args.estimator)
     ct = read_image(args.like) if args.like else None
+    if args.dvf and ct is None:
+        raise OptionError("--dvf warps the reference CT of --like; give --like too")
+    dvfs = [read_dvf(f) for f in args.dvf] if args.dvf else None
     with dask_context(args.dask) as client:
         result = run_dose4d(series, plan, settings, ct_hu=ct, calibration=calibration_from(args),
-                            progress=not args.quiet, client=client,
+                            dvfs=dvfs, progress=not args.quiet, client=client,
                             batches_per_task=args.batches_per_task)
     write_dose4d(result, args.output)
     acc = result.accumulated
