@@ -26,6 +26,7 @@ from tetdose._typing import IntArray
 from tetdose.transport._geometry_tet import (
     BARY_TOL,
     TetGeometry,
+    enter_mesh,
     first_boundary_hit,
     ray_triangle,
     walk_to,
@@ -134,6 +135,9 @@ def start_cell(wg, x, y, z, u, v, w):
     ahead), outside it flies through vacuum to the grid or the mesh (:func:`vacuum_flight`).
     """
     m = wg.tet.planes.shape[0]
+    if wg.vox.density.shape[0] == 0:  # the mesh alone: one ray cast decides
+        k, x, y, z, n_reloc = enter_mesh(wg.tet, x, y, z, u, v, w)
+        return k, x, y, z, n_reloc
     if m > 0:
         t0, t1 = box_interval(wg.tet.grid_lo, wg.tet.grid_cell, wg.tet.grid_n, x, y, z, u, v, w)
         if t0 <= t1 and t1 >= 0.0:

@@ -64,7 +64,7 @@ RELOCATE_NUDGE_MM = 1e-6
 MAX_RELOCATIONS = 4
 
 
-@kernel
+@njit(cache=True, inline="always")
 def flight_mesh(g, xs, e, k, entry, x, y, z, u, v, w, tau, track, tally, counts):
     """Move a photon through the mesh to its next interaction: (outcome, tet, x, y, z, τ).
 
