@@ -62,8 +62,8 @@ class RegistrationSettings:
 
     method: str = "demons"
     shrink: tuple[int, ...] = (4, 2, 1)
-    iterations: tuple[int, ...] = (80, 40, 20)
-    smoothing_mm: float = 4.0
+    iterations: tuple[int, ...] = (100, 60, 40)
+    smoothing_mm: float = 5.0
     grid_spacing_mm: float = 30.0
     threads: int | None = None
 
