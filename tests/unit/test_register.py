@@ -156,3 +156,37 @@ def test_cli_register_deform_evaluate_chain(tmp_path):
         assert r["mass_error_in_mesh_pct"] < 100.0 and np.isfinite(r["rmde_pct"])
     assert (tmp_path / "ev" / "phase_050.0.png").exists()
     assert main(["evaluate", "--phases", str(tmp_path / "ph"), "-o", str(tmp_path / "x")]) == 2
+
+
+def test_folding_is_reported_as_a_one_line_error(capsys):
+    from tetdose.cli._register import print_reports
+    from tetdose.motion.register import RegistrationReport
+
+    ok = RegistrationReport(0.0, 1.0, 0.5, 0.9, 1.1, 0.0, (0.0, 0.0, 0.0), 3.0, 1.0)
+    bad = RegistrationReport(20.0, 1.0, 0.5, -0.4, 1.3, 0.0123, (1.0, -2.5, 30.0), 9.0, 1.0)
+    assert print_reports([ok], "register") == 0
+    assert print_reports([ok, bad], "register") == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1
+    assert "phase 20 %" in err[0] and "1.23 %" in err[0] and "(1.0, -2.5, 30.0) mm" in err[0]
+
+
+def test_cli_register_with_a_mask_file(tmp_path):
+    from tetdose.io import write_image
+
+    ct = thorax()
+    phases = [ct.with_array(np.rint(ct.array).astype(np.int16))] * 2
+    write_ct_series_4d(phases, tmp_path / "ct4d", phase_percent=[0.0, 50.0])
+    lung = ((ct.array < -300) & (ct.array > -950)).astype(np.uint8)
+    write_image(tmp_path / "lung.nii.gz", Image(lung, ct.grid))
+    assert main(["register", "-q", "--4dct", str(tmp_path / "ct4d"), "--reference", "50",
+                 "--mask", str(tmp_path / "lung.nii.gz"), "--shrink", "1", "--iterations", "10",
+                 "-o", str(tmp_path / "dvf")]) == 0
+    report = json.loads((tmp_path / "dvf" / "register.json").read_text())
+    assert report["reference_percent"] == 50.0
+    assert all(np.abs(read_dvf(f).vectors_mm).max() < 0.1
+               for f in (tmp_path / "dvf").glob("*.nrrd"))  # identical phases
+    write_image(tmp_path / "empty.nii.gz", Image(0 * lung, ct.grid))
+    assert main(["register", "-q", "--4dct", str(tmp_path / "ct4d"), "--reference", "50",
+                 "--mask", str(tmp_path / "empty.nii.gz"), "-o", str(tmp_path / "x")]) == 2
+    assert not (tmp_path / "x").exists()  # nothing half-written

@@ -11,7 +11,8 @@ mono-modal metric (same scanner, same HU: squared intensity difference):
   symmetric/ESM forces, ``FastSymmetricForcesDemonsRegistrationFilter``), u ← G_σ * (u + δu) at
   every iteration, the field of one level upsampled as the start of the next. Intensities are
   clipped to [−1000, 1000] HU (dense bone would otherwise dominate the forces) and voxels outside
-  the mask set to −1000 HU in both images, so only the body drives the field.
+  the mask set to −1000 HU in both images, so only the body drives the field (the body mask is
+  each image's own; a given mask is widened by 15 mm and applied to both alike).
 * ``"bspline"``: a cubic B-spline transform (control points every ``grid_spacing_mm`` at the
   finest level, refined ×2 per level), mean-squares metric restricted to the mask, L-BFGS-B.
 
@@ -46,6 +47,8 @@ METHODS = ("demons", "bspline")
 BODY_THRESHOLD_HU = -400.0
 #: Fraction of the mask voxels sampled by the B-spline metric at each evaluation.
 BSPLINE_SAMPLING = 0.2
+#: A given mask is widened by this margin [mm] (more than breathing motion) for demons.
+MASK_MARGIN_MM = 15.0
 #: Intensity window [HU] the demons forces see.
 DEMONS_CLIP_HU = (-1000.0, 1000.0)
 
@@ -172,6 +175,7 @@ def register(reference: Image, phase: Image, *, mask: np.ndarray | None = None,
     s = settings or RegistrationSettings()
     if s.threads is not None:
         sitk.ProcessObject.SetGlobalDefaultNumberOfThreads(int(s.threads))
+    given = mask is not None
     mask = body_mask(reference) if mask is None else np.asarray(mask, dtype=bool)
     if mask.shape != reference.grid.shape:
         raise ImageError(f"mask shape {mask.shape} differs from the reference CT's "
@@ -183,11 +187,11 @@ def register(reference: Image, phase: Image, *, mask: np.ndarray | None = None,
     if not phase.grid.same_as(reference.grid):
         moving = sitk.Resample(moving, fixed, sitk.Transform(), sitk.sitkLinear, -1000.0)
     t0 = time.perf_counter()
-    u = _run(fixed, moving, mask, s)
+    u = _run(fixed, moving, mask, s, given)
     seconds = time.perf_counter() - t0
     report = _report(fixed, moving, mask, u, reference, percent, seconds)
     if inverse_consistency:
-        w = _run(moving, fixed, _moving_mask(moving, mask), s)
+        w = _run(moving, fixed, mask if given else _moving_mask(moving, mask), s, given)
         report = _with_inverse_consistency(report, u, w, mask, reference)
     return u, report
 
@@ -218,10 +222,11 @@ def register_4dct(phases: Sequence[Image], reference_index: int, *,
 # --- the two methods ----------------------------------------------------------------------------
 
 
-def _run(fixed, moving, mask: np.ndarray, s: RegistrationSettings) -> DisplacementField:  # noqa: ANN001
+def _run(fixed, moving, mask: np.ndarray, s: RegistrationSettings,  # noqa: ANN001
+         given: bool) -> DisplacementField:
     if s.method == "demons":
-        return _demons(fixed, moving, mask, s)
-    return _bspline(fixed, moving, mask, s)
+        return _demons(fixed, moving, mask, s, given)
+    return _bspline(fixed, moving, mask, s, given)
 
 
 def _float(image: Image):  # noqa: ANN202 - SimpleITK image
@@ -259,13 +264,25 @@ def _level_grid(image, shrink: int, min_spacing_mm: float = 0.0):  # noqa: ANN00
     return sitk.Shrink(smooth, factors)
 
 
-def _demons(fixed, moving, mask: np.ndarray, s: RegistrationSettings) -> DisplacementField:  # noqa: ANN001
+def _demons(fixed, moving, mask: np.ndarray, s: RegistrationSettings,  # noqa: ANN001
+            given: bool) -> DisplacementField:
+    """Multi-resolution demons. The body mask is each image's own (skin is an edge in both); a
+    given mask is dilated by :data:`MASK_MARGIN_MM` and applied to both images alike, so that
+    tissue moving across its border stays visible and identical images stay identical."""
     import SimpleITK as sitk
+    from scipy import ndimage
 
     lo, hi = DEMONS_CLIP_HU
-    fixed_m = _masked(sitk.Clamp(fixed, sitk.sitkFloat32, lo, hi), mask, lo)
-    moving_body = _moving_mask(moving, mask)
-    moving_m = _masked(sitk.Clamp(moving, sitk.sitkFloat32, lo, hi), moving_body, lo)
+    if given:
+        radius = np.ceil(MASK_MARGIN_MM / np.array(fixed.GetSpacing())[::-1]).astype(int)
+        zz, yy, xx = np.ogrid[tuple(slice(-r, r + 1) for r in radius)]
+        ball = (zz / max(radius[0], 1)) ** 2 + (yy / max(radius[1], 1)) ** 2 + \
+            (xx / max(radius[2], 1)) ** 2 <= 1.0
+        fixed_mask = moving_mask = ndimage.binary_dilation(mask, structure=ball)
+    else:
+        fixed_mask, moving_mask = mask, _moving_mask(moving, mask)
+    fixed_m = _masked(sitk.Clamp(fixed, sitk.sitkFloat32, lo, hi), fixed_mask, lo)
+    moving_m = _masked(sitk.Clamp(moving, sitk.sitkFloat32, lo, hi), moving_mask, lo)
     field_img = None
     for shrink, iters in zip(s.shrink, s.iterations, strict=True):
         f = _level_grid(fixed_m, shrink, s.min_spacing_mm)
@@ -294,7 +311,8 @@ def _masked(img, mask: np.ndarray, value: float):  # noqa: ANN001, ANN202
     return out
 
 
-def _bspline(fixed, moving, mask: np.ndarray, s: RegistrationSettings) -> DisplacementField:  # noqa: ANN001
+def _bspline(fixed, moving, mask: np.ndarray, s: RegistrationSettings,  # noqa: ANN001
+             given: bool = False) -> DisplacementField:
     import SimpleITK as sitk
 
     n_levels = len(s.shrink)
