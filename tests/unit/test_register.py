@@ -67,7 +67,7 @@ def test_known_smooth_field_is_recovered():
     u = breathing_field(5.0, diaphragm_z_mm=-20.0, centre_xy_mm=(0.0, 0.0),
                         width_xy_mm=(40.0, 40.0), decay_mm=60.0)
     phase = warp(ct, u)
-    field, report = register(ct, phase, settings=FAST, percent=40.0)
+    field, report = register(ct, phase, settings=FAST, percent=40.0, inverse_consistency=True)
     lung = (ct.array < -300) & (ct.array > -950) & inner(ct.grid)
     err = np.linalg.norm(field.vectors_mm - u(ct.grid.voxel_centers_mm()).reshape(field.vectors_mm.shape),
                          axis=-1)[lung]
@@ -77,6 +77,8 @@ def test_known_smooth_field_is_recovered():
     assert report.metric_after_hu2 < 0.3 * report.metric_before_hu2
     assert report.folding_fraction == 0 and report.jacobian_min > 0
     assert report.percent == 40.0 and report.seconds > 0
+    # the separately registered backward field undoes the forward one: |u(x) + w(x + u(x))|
+    assert report.inverse_consistency_mean_mm < 0.5 and report.inverse_consistency_max_mm < 3.0
 
 
 def test_jacobian_of_affine_and_folding_fields():
