@@ -215,8 +215,7 @@ def register_4dct(phases: Sequence[Image], reference_index: int, *,
     pct = list(percents) if percents is not None else [100.0 * k / len(phases)
                                                         for k in range(len(phases))]
     ref = phases[reference_index]
-    mask = body_mask(ref) if mask is None else mask
-    out = []
+    out = []  # mask None: each registration takes the body masks of its own two images
     for k in tqdm(range(len(phases)), desc="registration", unit="phase", disable=not progress):
         if k == reference_index:
             zero = DisplacementField(np.zeros((*ref.grid.shape, 3)), ref.grid)
