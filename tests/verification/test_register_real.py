@@ -6,11 +6,12 @@ amplitude at the diaphragm (see ``tests/known_motion.py``: exact inverse, then t
 resampling). The recovered field must match u inside the lung (its mask resampled onto the CT
 grid): mean error < 1 mm, 95th percentile < 2 mm, no folding; and the vertices of a lung mesh
 moved by the recovered field must land within 1.5 mm of u's positions. The smooth breathing
-and the sliding-like field (a chest wall that stays while the lung moves, through a 5 mm shear
-layer) are ``slow`` (~20 s each on the shared VM). Measured (defaults, bench/README.md): smooth
-field mean 0.30 mm, p95 0.65 mm, worst vertex 1.40 mm; sliding mean 0.24 mm, p95 0.68 mm, but
-the worst vertex 2.65 mm at the shear layer, where the demons' Gaussian regularisation cannot
-follow a discontinuous field — so there the 95th percentile of the vertices is asserted.
+field runs in ``make test`` (8 s on a quiet VM, ~20 s loaded); the sliding-like one (a chest
+wall that stays while the lung moves, through a 5 mm shear layer) is ``slow``. Measured
+(defaults, bench/README.md): smooth field mean 0.30 mm, p95 0.65 mm, worst vertex 1.40 mm;
+sliding mean 0.24 mm, p95 0.68 mm, but the worst vertex 2.65 mm at the shear layer, where the
+demons' Gaussian regularisation cannot follow a discontinuous field — so there the 95th
+percentile of the vertices is asserted.
 """
 
 from __future__ import annotations
@@ -70,7 +71,6 @@ def check_recovery(ct: Image, lung: np.ndarray, u, *, vertex_p95: bool = False  
     return {"mean": err.mean(), "p95": np.percentile(err, 95), "vertex_max": vert_err.max()}
 
 
-@pytest.mark.slow
 def test_smooth_breathing_is_recovered_on_real_ct(lung_ct):
     ct, lung = lung_ct
     check_recovery(ct, lung, breathing_field(12.0, DIAPHRAGM_Z_MM, centre_xy_mm=(-80.0, -40.0),
