@@ -177,18 +177,19 @@ def test_cli_register_with_a_mask_file(tmp_path):
     from tetdose.io import write_image
 
     ct = thorax()
-    phases = [ct.with_array(np.rint(ct.array).astype(np.int16))] * 2
-    write_ct_series_4d(phases, tmp_path / "ct4d", phase_percent=[0.0, 50.0])
+    same = ct.with_array(np.rint(ct.array).astype(np.int16))
+    files = [str(write_image(tmp_path / f"phase_{p:05.1f}.nrrd", same)) for p in (50.0, 0.0)]
     lung = ((ct.array < -300) & (ct.array > -950)).astype(np.uint8)
     write_image(tmp_path / "lung.nii.gz", Image(lung, ct.grid))
-    assert main(["register", "-q", "--4dct", str(tmp_path / "ct4d"), "--reference", "50",
+    assert main(["register", "-q", "--4dct", *files, "--reference", "50",
                  "--mask", str(tmp_path / "lung.nii.gz"), "--shrink", "1", "--iterations", "10",
                  "-o", str(tmp_path / "dvf")]) == 0
     report = json.loads((tmp_path / "dvf" / "register.json").read_text())
     assert report["reference_percent"] == 50.0
+    assert [p["percent"] for p in report["phases"]] == [0.0, 50.0]  # files sorted by name %
     assert all(np.abs(read_dvf(f).vectors_mm).max() < 0.1
                for f in (tmp_path / "dvf").glob("*.nrrd"))  # identical phases
     write_image(tmp_path / "empty.nii.gz", Image(0 * lung, ct.grid))
-    assert main(["register", "-q", "--4dct", str(tmp_path / "ct4d"), "--reference", "50",
+    assert main(["register", "-q", "--4dct", *files, "--reference", "50",
                  "--mask", str(tmp_path / "empty.nii.gz"), "-o", str(tmp_path / "x")]) == 2
     assert not (tmp_path / "x").exists()  # nothing half-written

@@ -27,7 +27,8 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--ct", help="the CT the mesh was mapped from (HU)")
     p.add_argument("--mesh", help="mapped mesh (point_data 'density' in g/cm³)")
     p.add_argument("--phases", help="per-phase mode: folder written by `tetdose deform`")
-    p.add_argument("--4dct", dest="ct4d", help="per-phase mode: the real 4D-CT (folder or files)")
+    p.add_argument("--4dct", dest="ct4d", nargs="+",
+                   help="per-phase mode: the real 4D-CT (a folder, or one image file per phase)")
     p.add_argument("--mask", help="label image defining the ROI (default: voxels ≥ 50 %% in mesh)")
     p.add_argument("--label", type=int, action="append",
                    help="label value(s) of --mask forming the ROI (default: any non-zero)")
@@ -72,7 +73,7 @@ def _run_phases(args: argparse.Namespace) -> int:
     series = PhaseSeries.read(None, args.phases)
     if series.density_g_cm3 is None:
         raise TetdoseError(f"{args.phases} carries no phase densities; write it with `tetdose deform`")
-    ct_phases = read_4dct(args.ct4d)
+    ct_phases = read_4dct(args.ct4d[0] if len(args.ct4d) == 1 else args.ct4d)
     calibration = calibration_from(args)
     out = Path(args.output)
     out.mkdir(parents=True, exist_ok=True)

@@ -42,7 +42,7 @@ def _add_deform_args(p: argparse.ArgumentParser) -> None:
                      help="target surfaces (STL/OBJ/PLY), one per phase: ICP + elastic FEM")
     src.add_argument("--breathing", action="store_true",
                      help="built-in Lujan cos^2n breathing (reference = end-exhale)")
-    src.add_argument("--4dct", dest="ct4d", type=Path, metavar="CT4D",
+    src.add_argument("--4dct", dest="ct4d", type=Path, nargs="+", metavar="CT4D",
                      help="real 4D-CT: register every phase to --reference, then deform")
     p.add_argument("--reference", type=float, metavar="PERCENT",
                    help="--4dct: reference phase [%%], the CT the mesh was mapped from")

@@ -21,7 +21,7 @@ REPORT_NAME = "register.json"
 
 
 def add_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--4dct", dest="ct4d", required=True, type=Path, metavar="CT4D",
+    p.add_argument("--4dct", dest="ct4d", required=True, type=Path, nargs="+", metavar="CT4D",
                    help="4D-CT: a folder of phase CT series, or one image file per phase")
     p.add_argument("--reference", required=True, type=float, metavar="PERCENT",
                    help="reference phase [%%] (the CT the mesh was mapped from)")
@@ -66,7 +66,7 @@ def register_to(args: argparse.Namespace, out_dir: Path) -> tuple[list[Path], li
     from tetdose.motion.dvf import write_dvf
     from tetdose.motion.register import register_4dct
 
-    phases = read_4dct(args.ct4d)
+    phases = read_4dct(ct4d_source(args.ct4d))
     ref = find_phase(phases, args.reference)
     mask = None if args.mask is None else _mask_on(args.mask, phases[ref].image)
     percents = [p.percent for p in phases]
@@ -78,12 +78,17 @@ def register_to(args: argparse.Namespace, out_dir: Path) -> tuple[list[Path], li
     for name, (field, _) in zip(names, results, strict=True):
         write_dvf(out_dir / name, field)
     reports = [r for _, r in results]
-    doc = {"reference_percent": percents[ref], "ct4d": str(args.ct4d),
+    doc = {"reference_percent": percents[ref], "ct4d": [str(p) for p in args.ct4d],
            "settings": vars(settings_from(args)),
            "phases": [{"file": n, "source": p.source, **r.as_dict()}
                       for n, p, r in zip(names, phases, reports, strict=True)]}
     (out_dir / REPORT_NAME).write_text(json.dumps(doc, indent=2))
     return [out_dir / n for n in names], percents, reports
+
+
+def ct4d_source(paths: list[Path]) -> Path | list[Path]:
+    """``--4dct`` values: one folder (or file), or several image files (one per phase)."""
+    return paths[0] if len(paths) == 1 else paths
 
 
 def print_reports(reports: list[RegistrationReport], command: str) -> int:
