@@ -34,10 +34,11 @@ def add_registration_args(p: argparse.ArgumentParser) -> None:
     from tetdose.motion.register import METHODS, RegistrationSettings
 
     d = RegistrationSettings()
-    p.add_argument("--mask", type=Path, help="label image: register inside its non-zero voxels "
+    p.add_argument("--mask", type=Path,
+                   help="registration mask: a label image, register inside its non-zero voxels "
                    "(default: the body, HU > -400, slice-wise convex hull)")
     p.add_argument("--registration", dest="reg_method", choices=METHODS, default=d.method,
-                   help="symmetric-forces demons (default, measured faster and as accurate) or B-spline")
+                   help="symmetric-forces demons (default: measured faster and more accurate) or B-spline")
     p.add_argument("--smoothing-mm", type=float, default=d.smoothing_mm,
                    help="demons: Gaussian σ of the field [mm]")
     p.add_argument("--grid-spacing-mm", type=float, default=d.grid_spacing_mm,
