@@ -155,8 +155,8 @@ def _check_slice_geometry(headers: Sequence[Any], what: str) -> None:
     """Same in-plane geometry on every slice, and uniform slice spacing (see read_dicom_files)."""
     def plane(h: Any) -> tuple:
         return (int(h.get("Rows", 0)), int(h.get("Columns", 0)),
-                tuple(np.round(np.asarray(h.get("PixelSpacing", [0, 0]), float), 4)),
-                tuple(np.round(np.asarray(h.get("ImageOrientationPatient", [0] * 6), float), 4)))
+                tuple(round(float(v), 4) for v in h.get("PixelSpacing", [0, 0])),
+                tuple(round(float(v), 4) for v in h.get("ImageOrientationPatient", [0] * 6)))
 
     kinds = {plane(h) for h in headers}
     if len(kinds) > 1:
