@@ -20,6 +20,7 @@ from tetdose.mapping import DensityMap, map_density
 from tetdose.mapping.metrics import evaluate
 from tetdose.mesh import TetMesh
 from tetdose.motion import BreathingModel, PhaseSeries, update_series
+from tetdose.motion.ct4d_read import Phase4D, read_4dct
 from tetdose.study import StudyConfig, run_study
 from tetdose.transport import (
     DoseResult,
@@ -43,6 +44,7 @@ __all__ = [
     "ImageError",
     "ImageGrid",
     "MeshError",
+    "Phase4D",
     "PhaseSeries",
     "PhotonSource",
     "Plan",
@@ -55,6 +57,7 @@ __all__ = [
     "evaluate",
     "map_density",
     "phantoms",
+    "read_4dct",
     "read_ct",
     "read_image",
     "read_mesh",

@@ -6,7 +6,9 @@ import contextlib
 import io
 import os
 import warnings
+from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -152,7 +154,6 @@ def read_ct(path: str | os.PathLike[str]) -> Image:
 
 
 def _read_dicom_series(folder: Path) -> Image:
-    import pydicom
     import SimpleITK as sitk
 
     reader = sitk.ImageSeriesReader()
@@ -161,27 +162,62 @@ def _read_dicom_series(folder: Path) -> Image:
         raise ImageError(f"{folder} holds no DICOM image series")
     if len(series) > 1:
         raise ImageError(f"{folder} holds {len(series)} series; give a folder with one CT series")
-    files = reader.GetGDCMSeriesFileNames(str(folder), series[0])
-    headers = [pydicom.dcmread(f, stop_before_pixels=True) for f in files]
+    return read_dicom_files(reader.GetGDCMSeriesFileNames(str(folder), series[0]), what=str(folder))
+
+
+def read_dicom_files(files: Sequence[str | os.PathLike[str]], *, what: str,
+                     headers: Sequence[Any] | None = None) -> Image:
+    """Read the slices ``files`` of one CT series (in slice order) as one image [HU].
+
+    Checks (the error names ``what``): modality CT; every slice with the same rows, columns,
+    pixel spacing and orientation; uniformly spaced slice positions along the slice normal (a
+    missing or duplicate slice breaks it). ``headers``: the files' pydicom headers if already read.
+    """
+    import pydicom
+    import SimpleITK as sitk
+
+    files = [str(f) for f in files]
+    if headers is None:
+        headers = [pydicom.dcmread(f, stop_before_pixels=True) for f in files]
     modality = {str(h.get("Modality", "")) for h in headers}
     if modality != {"CT"}:
-        raise ImageError(f"{folder}: modality {sorted(modality)}, expected CT; give a CT series")
-    normal = _check_orientation(folder, headers)
-    _check_rescale(folder, headers)
+        raise ImageError(f"{what}: modality {sorted(modality)}, expected CT; give a CT series")
+    normal = _check_orientation(what, headers)
+    _check_rescale(what, headers)
+    _check_slice_geometry(headers, what)
     if len(files) > 1:
-        pos = np.sort([float(np.dot(normal, h.ImagePositionPatient)) for h in headers])
-        gaps = np.diff(pos)
-        if gaps.min() <= 0 or (gaps.max() - gaps.min()) > SLICE_SPACING_RTOL * gaps.mean():
-            raise ImageError(
-                f"{folder}: slice spacing is not uniform (gaps {gaps.min():.4g}…{gaps.max():.4g} mm"
-                "); missing or duplicate slices — resample to a uniform grid first"
-            )
-        _check_shear(folder, headers, normal)
+        _check_shear(what, headers, normal)
+    reader = sitk.ImageSeriesReader()
     reader.SetFileNames(files)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         img = reader.Execute()
-    return check_ct_hu(Image.from_sitk(img), f"the CT series {folder}")
+    return check_ct_hu(Image.from_sitk(img), f"the CT series {what}")
+
+
+def _check_slice_geometry(headers: Sequence[Any], what: str) -> None:
+    """Same in-plane geometry on every slice, and uniform slice spacing (see read_dicom_files)."""
+    def plane(h: Any) -> tuple:
+        return (int(h.get("Rows", 0)), int(h.get("Columns", 0)),
+                tuple(round(float(v), 4) for v in h.get("PixelSpacing", [0, 0])),
+                tuple(round(float(v), 4) for v in h.get("ImageOrientationPatient", [0] * 6)))
+
+    kinds = {plane(h) for h in headers}
+    if len(kinds) > 1:
+        raise ImageError(
+            f"{what}: slices differ in size, pixel spacing or orientation ({len(kinds)} kinds: "
+            f"{sorted(kinds)[:2]} …); a series must have one geometry — export it again"
+        )
+    if len(headers) > 1:
+        iop = np.array(headers[0].ImageOrientationPatient, dtype=float)
+        normal = np.cross(iop[:3], iop[3:])
+        pos = np.sort([float(np.dot(normal, h.ImagePositionPatient)) for h in headers])
+        gaps = np.diff(pos)
+        if gaps.min() <= 0 or (gaps.max() - gaps.min()) > SLICE_SPACING_RTOL * gaps.mean():
+            raise ImageError(
+                f"{what}: slice spacing is not uniform (gaps {gaps.min():.4g}…{gaps.max():.4g} mm"
+                "); missing or duplicate slices — resample to a uniform grid first"
+            )
 
 
 def _check_orientation(folder: Path, headers: list) -> np.ndarray:  # type: ignore[type-arg]

@@ -33,6 +33,7 @@ COMMANDS = {
     "voxelize": ("tetdose.cli._voxelize", "virtual CT: mesh density back onto a CT grid"),
     "evaluate": ("tetdose.cli._evaluate", "mapping error metrics, error images and figures"),
     "deform": ("tetdose.cli._motion", "breathing phases with mass-conserving vertex density"),
+    "register": ("tetdose.cli._register", "real 4D-CT → one displacement field per phase (SimpleITK)"),
     "4dct": ("tetdose.cli._motion", "4D virtual CT: every phase voxelized on a reference CT"),
     "dose": ("tetdose.cli._dose", "Monte Carlo photon dose per tetrahedron or per voxel"),
     "compare": ("tetdose.cli._compare", "mesh vs voxel dose: gamma, DVH, profiles, HTML report"),

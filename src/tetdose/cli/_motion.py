@@ -42,6 +42,10 @@ def _add_deform_args(p: argparse.ArgumentParser) -> None:
                      help="target surfaces (STL/OBJ/PLY), one per phase: ICP + elastic FEM")
     src.add_argument("--breathing", action="store_true",
                      help="built-in Lujan cos^2n breathing (reference = end-exhale)")
+    src.add_argument("--4dct", dest="ct4d", type=Path, nargs="+", metavar="CT4D",
+                     help="real 4D-CT: register every phase to --reference, then deform")
+    p.add_argument("--reference", type=float, metavar="PERCENT",
+                   help="--4dct: reference phase [%%], the CT the mesh was mapped from")
     p.add_argument("--amplitude-mm", type=float, default=10.0,
                    help="breathing: cranio-caudal amplitude at the diaphragm [mm]")
     p.add_argument("--period-s", type=float, default=4.0, help="breathing: period [s]")
@@ -55,7 +59,11 @@ def _add_deform_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--young-kpa", type=float, default=7.8, help="FEM Young's modulus [kPa]")
     p.add_argument("--poisson", type=float, default=0.45, help="FEM Poisson's ratio")
     p.add_argument("-o", "--output", required=True, type=Path,
-                   help="output folder: one VTU per phase + phases.pvd + mass_report.csv")
+                   help="output folder: one VTU per phase + phases.pvd + mass_report.csv "
+                   "(with --4dct also dvf/: the fields and register.json)")
+    from tetdose.cli._register import add_registration_args
+
+    add_registration_args(p)
 
 
 def _add_4dct_args(p: argparse.ArgumentParser) -> None:
@@ -72,12 +80,24 @@ def _add_4dct_args(p: argparse.ArgumentParser) -> None:
                    help="voxels partly inside the mesh (see tetdose.voxelize)")
 
 
-def _motion_series(args: argparse.Namespace, reference: TetMesh) -> PhaseSeries:
+def _motion_series(args: argparse.Namespace, reference: TetMesh, out_dir: Path) -> PhaseSeries:
     import numpy as np
 
+    from tetdose.cli._register import percents_of, print_reports, register_to
+    from tetdose.errors import TetdoseError
     from tetdose.motion import BreathingModel, PhaseSeries, read_dvf
 
     pct = args.phase_percent
+    if args.ct4d:
+        if args.reference is None:
+            raise TetdoseError("--4dct needs --reference PERCENT: the phase the mesh was mapped from")
+        files, percents, reports = register_to(args, out_dir / "dvf")
+        if print_reports(reports, "deform"):
+            raise TetdoseError("a registered field folds (see above); the mesh was not deformed — "
+                               "raise --smoothing-mm or give a --mask")
+        args.dvf, pct = files, (percents if pct is None else pct)
+    elif args.dvf and pct is None:
+        pct = percents_of(list(args.dvf))
     if args.breathing:
         model = BreathingModel(args.amplitude_mm, args.period_s, args.shape_n)
         return model.series(reference, args.n_phases)
@@ -102,8 +122,9 @@ def _run_deform(args: argparse.Namespace) -> int:
 
     reference = read_mesh(args.mesh)
     rho0 = reference_density(reference)
-    series, reports = update_series(_motion_series(args, reference), rho0, method=args.method)
     with atomic_write_dir(args.output) as tmp:
+        series, reports = update_series(_motion_series(args, reference, tmp), rho0,
+                                        method=args.method)
         series.write(tmp)
         rows = ["phase_percent,time_weight,total_mass_g,mass_change_rel,min_density_g_cm3,"
                 "max_density_g_cm3,worst_volume_change"]

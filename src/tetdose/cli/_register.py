@@ -1,0 +1,142 @@
+"""``tetdose register``: one displacement field per phase of a real 4D-CT (reference → phase).
+
+Writes ``phase_PPP.P.nrrd`` (mm, ITK convention, read by ``deform --dvf``) per phase and
+``register.json`` (settings, and per phase: file, percent and the quality report). A field that
+folds (det J ≤ 0 inside the mask) is still written, for inspection, but reported as an error and
+the exit code is 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from tetdose.motion.register import RegistrationReport, RegistrationSettings
+
+#: Name of the registration report written beside the fields.
+REPORT_NAME = "register.json"
+
+
+def add_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--4dct", dest="ct4d", required=True, type=Path, nargs="+", metavar="CT4D",
+                   help="4D-CT: a folder of phase CT series, or one image file per phase")
+    p.add_argument("--reference", required=True, type=float, metavar="PERCENT",
+                   help="reference phase [%%] (the CT the mesh was mapped from)")
+    p.add_argument("-o", "--output", required=True, type=Path, help="output folder for the fields")
+    add_registration_args(p)
+
+
+def add_registration_args(p: argparse.ArgumentParser) -> None:
+    """Options shared with ``deform --4dct``."""
+    from tetdose.motion.register import METHODS, RegistrationSettings
+
+    d = RegistrationSettings()
+    p.add_argument("--mask", type=Path,
+                   help="registration mask: a label image, register inside its non-zero voxels "
+                   "(default: the body, HU > -400, slice-wise convex hull)")
+    p.add_argument("--registration", dest="reg_method", choices=METHODS, default=d.method,
+                   help="symmetric-forces demons (default: measured faster and more accurate) or B-spline")
+    p.add_argument("--smoothing-mm", type=float, default=d.smoothing_mm,
+                   help="demons: Gaussian σ of the field [mm]")
+    p.add_argument("--grid-spacing-mm", type=float, default=d.grid_spacing_mm,
+                   help="B-spline: control-point spacing at the finest level [mm]")
+    p.add_argument("--shrink", type=int, nargs="+", default=list(d.shrink),
+                   help="pyramid shrink factors, coarse → fine")
+    p.add_argument("--iterations", type=int, nargs="+", default=list(d.iterations),
+                   help="iterations per pyramid level")
+    p.add_argument("--threads", type=int, help="SimpleITK threads (default: all cores)")
+    p.add_argument("--inverse-consistency", action="store_true",
+                   help="also register phase → reference and report |u(x) + w(x + u(x))| (2× time)")
+
+
+def settings_from(args: argparse.Namespace) -> RegistrationSettings:
+    from tetdose.motion.register import RegistrationSettings
+
+    return RegistrationSettings(method=args.reg_method, shrink=tuple(args.shrink),
+                                iterations=tuple(args.iterations), smoothing_mm=args.smoothing_mm,
+                                grid_spacing_mm=args.grid_spacing_mm, threads=args.threads)
+
+
+def register_to(args: argparse.Namespace, out_dir: Path) -> tuple[list[Path], list[float],
+                                                                 list[RegistrationReport]]:
+    """Read ``args.ct4d``, register every phase to ``args.reference``, write into ``out_dir``."""
+    from tetdose.motion.ct4d_read import find_phase, read_4dct
+    from tetdose.motion.dvf import write_dvf
+    from tetdose.motion.register import register_4dct
+
+    phases = read_4dct(ct4d_source(args.ct4d))
+    ref = find_phase(phases, args.reference)
+    mask = None if args.mask is None else _mask_on(args.mask, phases[ref].image)
+    percents = [p.percent for p in phases]
+    results = register_4dct([p.image for p in phases], ref, percents=percents, mask=mask,
+                            settings=settings_from(args),
+                            inverse_consistency=args.inverse_consistency, progress=not args.quiet)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    names = [f"phase_{p:05.1f}.nrrd" for p in percents]
+    for name, (field, _) in zip(names, results, strict=True):
+        write_dvf(out_dir / name, field)
+    reports = [r for _, r in results]
+    doc = {"reference_percent": percents[ref], "ct4d": [str(p) for p in args.ct4d],
+           "settings": vars(settings_from(args)),
+           "phases": [{"file": n, "source": p.source, **r.as_dict()}
+                      for n, p, r in zip(names, phases, reports, strict=True)]}
+    (out_dir / REPORT_NAME).write_text(json.dumps(doc, indent=2))
+    return [out_dir / n for n in names], percents, reports
+
+
+def ct4d_source(paths: list[Path]) -> Path | list[Path]:
+    """``--4dct`` values: one folder (or file), or several image files (one per phase)."""
+    return paths[0] if len(paths) == 1 else paths
+
+
+def print_reports(reports: list[RegistrationReport], command: str) -> int:
+    """Print one line per phase; folding phases as errors. Return the exit code."""
+    import sys
+
+    code = 0
+    for r in reports:
+        print(r.line())
+        if r.folded:
+            print(f"tetdose {command}: error: {r.folding_message()}", file=sys.stderr)
+            code = 2
+    return code
+
+
+def percents_of(dvf_files: list[Path]) -> list[float] | None:
+    """Phase percentages of DVFs written by ``register`` (from its report), else None."""
+    folders = {f.parent for f in dvf_files}
+    if len(folders) != 1 or not (report := next(iter(folders)) / REPORT_NAME).exists():
+        return None
+    by_name = {p["file"]: p["percent"] for p in json.loads(report.read_text())["phases"]}
+    if not all(f.name in by_name for f in dvf_files):
+        return None
+    return [float(by_name[f.name]) for f in dvf_files]
+
+
+def _mask_on(path: Path, like):  # noqa: ANN001, ANN202
+    """Non-zero voxels of a label image, resampled onto ``like``'s grid (nearest, physical)."""
+    import numpy as np
+    import SimpleITK as sitk
+
+    from tetdose.errors import ImageError
+    from tetdose.io import read_image
+
+    mask = read_image(path)
+    arr = mask.array if mask.grid.same_as(like.grid) else sitk.GetArrayFromImage(sitk.Resample(
+        mask.to_sitk(), like.to_sitk(), sitk.Transform(), sitk.sitkNearestNeighbor, 0))
+    if not np.any(arr):
+        raise ImageError(f"the mask {path} holds no non-zero voxel on the reference phase's grid")
+    return arr != 0
+
+
+def run(args: argparse.Namespace) -> int:
+    from tetdose._atomic import atomic_write_dir
+
+    with atomic_write_dir(args.output) as tmp:
+        files, _, reports = register_to(args, Path(tmp))
+    code = print_reports(reports, "register")
+    print(f"wrote {len(files)} displacement fields and {REPORT_NAME} to {args.output}")
+    return code

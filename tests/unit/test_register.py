@@ -1,0 +1,195 @@
+"""Registration on tiny synthetic CTs: identity, a known smooth field, Jacobians, the CLI chain."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from scipy import ndimage
+
+from known_motion import breathing_field, warp
+from tetdose.cli import main
+from tetdose.dicom import write_ct_series_4d
+from tetdose.errors import ImageError
+from tetdose.image import Image, ImageGrid
+from tetdose.io import write_mesh
+from tetdose.motion.dvf import DisplacementField, read_dvf
+from tetdose.motion.phases import PhaseSeries
+from tetdose.motion.register import (
+    RegistrationSettings,
+    body_mask,
+    jacobian_range,
+    register,
+    register_4dct,
+)
+from tetdose.phantoms import mesh_labels
+
+GRID = ImageGrid([-40.0, -40.0, -30.0], [2.5, 2.5, 2.5], np.eye(3), (32, 32, 26))
+FAST = RegistrationSettings(shrink=(2, 1), iterations=(60, 30), smoothing_mm=4.0)
+
+
+def thorax(grid: ImageGrid = GRID) -> Image:
+    """A textured body (≈ 0 HU) with a lung (≈ −800 HU) holding smooth 'vessels', in air."""
+    rng = np.random.default_rng(7)
+    p = grid.voxel_centers_mm().reshape(*grid.shape, 3)
+    body = ((p[..., 0] / 34) ** 2 + (p[..., 1] / 32) ** 2) < 1
+    lung = ((p[..., 0] / 22) ** 2 + (p[..., 1] / 20) ** 2 + ((p[..., 2] - 5) / 30) ** 2) < 1
+    texture = ndimage.gaussian_filter(rng.normal(size=grid.shape), 1.5)
+    hu = np.where(body, 40.0 + 600 * texture, -1000.0)
+    hu = np.where(lung, -800.0 + 1500 * texture, hu)
+    return Image(hu, grid)
+
+
+def inner(grid: ImageGrid, margin_mm: float = 8.0) -> np.ndarray:
+    """Voxels at least ``margin_mm`` from the image faces (motion there leaves the image)."""
+    idx = np.indices(grid.shape)
+    m = np.ones(grid.shape, dtype=bool)
+    for a, n in enumerate(grid.shape):
+        k = int(np.ceil(margin_mm / grid.spacing_mm[2 - a]))
+        m &= (idx[a] >= k) & (idx[a] < n - k)
+    return m
+
+
+def test_identical_phases_give_zero_displacement():
+    ct = thorax()
+    out = register_4dct([ct, ct, ct], 1, percents=[0, 50, 80], settings=FAST)
+    assert len(out) == 3
+    for field, report in out:
+        assert np.abs(field.vectors_mm).max() < 0.1
+        assert not report.folded
+    assert out[1][1].notes == ["reference phase: zero field"]
+    assert out[0][1].metric_after_hu2 == pytest.approx(0.0, abs=1e-6)
+
+
+def test_known_smooth_field_is_recovered():
+    ct = thorax()
+    u = breathing_field(5.0, diaphragm_z_mm=-20.0, centre_xy_mm=(0.0, 0.0),
+                        width_xy_mm=(40.0, 40.0), decay_mm=60.0)
+    phase = warp(ct, u)
+    field, report = register(ct, phase, settings=FAST, percent=40.0, inverse_consistency=True)
+    lung = (ct.array < -300) & (ct.array > -950) & inner(ct.grid)
+    err = np.linalg.norm(field.vectors_mm - u(ct.grid.voxel_centers_mm()).reshape(field.vectors_mm.shape),
+                         axis=-1)[lung]
+    moved = np.linalg.norm(u(ct.grid.voxel_centers_mm()), axis=-1).reshape(ct.grid.shape)[lung]
+    assert moved.mean() > 2.0  # the test moves the lung
+    assert err.mean() < 0.5 * moved.mean() and err.mean() < 1.0
+    assert report.metric_after_hu2 < 0.3 * report.metric_before_hu2
+    assert report.folding_fraction == 0 and report.jacobian_min > 0
+    assert report.percent == 40.0 and report.seconds > 0
+    # the separately registered backward field undoes the forward one: |u(x) + w(x + u(x))|
+    assert report.inverse_consistency_mean_mm < 0.5 and report.inverse_consistency_max_mm < 3.0
+
+
+def test_jacobian_of_affine_and_folding_fields():
+    p = GRID.voxel_centers_mm().reshape(*GRID.shape, 3)
+    f = np.array([[0.1, 0.02, 0.0], [0.0, -0.2, 0.05], [0.03, 0.0, 0.15]])
+    jac = jacobian_range(DisplacementField(p @ f.T, GRID), inner(GRID, 3.0))
+    assert jac.min == pytest.approx(np.linalg.det(np.eye(3) + f), rel=1e-9)
+    assert jac.max == pytest.approx(jac.min, rel=1e-9) and jac.folding_fraction == 0
+    fold = np.zeros((*GRID.shape, 3))
+    x = p[..., 0]
+    fold[..., 0] = np.where(np.abs(x) < 10, -2.0 * x, -20.0 * np.sign(x))  # det = −1 in |x| < 10
+    jac = jacobian_range(DisplacementField(fold, GRID))
+    assert jac.min == pytest.approx(-1.0) and jac.max == pytest.approx(1.0)
+    expected = np.mean(np.abs(x) < 10 - 1.25)  # central differences: one voxel each side blurs
+    assert expected <= jac.folding_fraction <= np.mean(np.abs(x) < 10 + 1.25)
+    assert abs(jac.worst_mm[0]) < 10
+
+
+def test_body_mask_keeps_the_lung_when_it_touches_the_edge():
+    ct = thorax()
+    cut = Image(ct.array[:, :, :20], ImageGrid(ct.grid.origin_mm, ct.grid.spacing_mm,
+                                                np.eye(3), (20, 32, 26)))  # lung cut by x-face
+    mask = body_mask(cut)
+    lung = (cut.array < -300) & (cut.array > -950)
+    assert lung[:, :, -1].any() and mask[lung].all()
+    assert not mask[0, 0, 0]  # air corner
+    with pytest.raises(ImageError, match="holds no body"):
+        body_mask(Image(np.full(GRID.shape, -1000.0), GRID))
+
+
+def test_settings_are_checked():
+    with pytest.raises(ImageError, match="one per level"):
+        RegistrationSettings(shrink=(2, 1), iterations=(10,))
+    with pytest.raises(ImageError, match="method"):
+        RegistrationSettings(method="elastix")
+
+
+def test_cli_register_deform_evaluate_chain(tmp_path):
+    ct = thorax()
+    u = breathing_field(4.0, diaphragm_z_mm=-20.0, centre_xy_mm=(0.0, 0.0),
+                        width_xy_mm=(40.0, 40.0), decay_mm=60.0)
+    phases = [ct.with_array(np.rint(ct.array).astype(np.int16)),
+              ct.with_array(np.rint(warp(ct, u).array).astype(np.int16))]
+    write_ct_series_4d(phases, tmp_path / "ct4d", phase_percent=[0.0, 50.0])
+    args = ["--4dct", str(tmp_path / "ct4d"), "--reference", "0", "--shrink", "2", "1",
+            "--iterations", "60", "30"]
+    assert main(["register", "-q", *args, "-o", str(tmp_path / "dvf")]) == 0
+    report = json.loads((tmp_path / "dvf" / "register.json").read_text())
+    assert [p["percent"] for p in report["phases"]] == [0.0, 50.0]
+    assert report["phases"][1]["metric_after_hu2"] < report["phases"][1]["metric_before_hu2"]
+    fields = sorted((tmp_path / "dvf").glob("*.nrrd"))
+    assert [f.name for f in fields] == ["phase_000.0.nrrd", "phase_050.0.nrrd"]
+    assert np.abs(read_dvf(fields[0]).vectors_mm).max() == 0.0
+
+    lung = ((ct.array < -300) & (ct.array > -950) & inner(ct.grid, 8.0)).astype(np.uint8)
+    mesh = mesh_labels(Image(lung, ct.grid), target_edge_mm=10.0)
+    rho = np.full(mesh.n_points, 0.3)
+    write_mesh(tmp_path / "mapped.vtu", mesh.with_data(point_data={"density": rho}))
+    assert main(["deform", "--mesh", str(tmp_path / "mapped.vtu"), "--dvf", *map(str, fields),
+                 "-o", str(tmp_path / "ph")]) == 0
+    series = PhaseSeries.read(None, tmp_path / "ph")
+    np.testing.assert_array_equal(series.phase_percent, [0.0, 50.0])  # from register.json
+    err = np.linalg.norm(series.points_mm[1] - mesh.points_mm - u(mesh.points_mm), axis=1)
+    assert err.mean() < 1.0
+
+    assert main(["deform", "-q", "--mesh", str(tmp_path / "mapped.vtu"), *args,
+                 "-o", str(tmp_path / "one")]) == 0  # one step: register and deform
+    one = PhaseSeries.read(None, tmp_path / "one")
+    np.testing.assert_allclose(one.points_mm, series.points_mm, atol=1e-9)  # deterministic
+    assert (tmp_path / "one" / "dvf" / "register.json").exists()
+
+    assert main(["evaluate", "--phases", str(tmp_path / "ph"), "--4dct", str(tmp_path / "ct4d"),
+                 "-o", str(tmp_path / "ev")]) == 0
+    rows = json.loads((tmp_path / "ev" / "metrics.json").read_text())["phases"]
+    assert [r["phase_percent"] for r in rows] == [0.0, 50.0]
+    for r in rows:  # the mesh moved with the lung: its mass is the lung's in both phases
+        assert r["mass_error_in_mesh_pct"] < 100.0 and np.isfinite(r["rmde_pct"])
+    assert (tmp_path / "ev" / "phase_050.0.png").exists()
+    assert main(["evaluate", "--phases", str(tmp_path / "ph"), "-o", str(tmp_path / "x")]) == 2
+
+
+def test_folding_is_reported_as_a_one_line_error(capsys):
+    from tetdose.cli._register import print_reports
+    from tetdose.motion.register import RegistrationReport
+
+    ok = RegistrationReport(0.0, 1.0, 0.5, 0.9, 1.1, 0.0, (0.0, 0.0, 0.0), 3.0, 1.0)
+    bad = RegistrationReport(20.0, 1.0, 0.5, -0.4, 1.3, 0.0123, (1.0, -2.5, 30.0), 9.0, 1.0)
+    assert print_reports([ok], "register") == 0
+    assert print_reports([ok, bad], "register") == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1
+    assert "phase 20 %" in err[0] and "1.23 %" in err[0] and "(1.0, -2.5, 30.0) mm" in err[0]
+
+
+def test_cli_register_with_a_mask_file(tmp_path):
+    from tetdose.io import write_image
+
+    ct = thorax()
+    same = ct.with_array(np.rint(ct.array).astype(np.int16))
+    files = [str(write_image(tmp_path / f"phase_{p:05.1f}.nrrd", same)) for p in (50.0, 0.0)]
+    lung = ((ct.array < -300) & (ct.array > -950)).astype(np.uint8)
+    write_image(tmp_path / "lung.nii.gz", Image(lung, ct.grid))
+    assert main(["register", "-q", "--4dct", *files, "--reference", "50",
+                 "--mask", str(tmp_path / "lung.nii.gz"), "--shrink", "1", "--iterations", "10",
+                 "-o", str(tmp_path / "dvf")]) == 0
+    report = json.loads((tmp_path / "dvf" / "register.json").read_text())
+    assert report["reference_percent"] == 50.0
+    assert [p["percent"] for p in report["phases"]] == [0.0, 50.0]  # files sorted by name %
+    assert all(np.abs(read_dvf(f).vectors_mm).max() < 0.1
+               for f in (tmp_path / "dvf").glob("*.nrrd"))  # identical phases
+    write_image(tmp_path / "empty.nii.gz", Image(0 * lung, ct.grid))
+    assert main(["register", "-q", "--4dct", *files, "--reference", "50",
+                 "--mask", str(tmp_path / "empty.nii.gz"), "-o", str(tmp_path / "x")]) == 2
+    assert not (tmp_path / "x").exists()  # nothing half-written
