@@ -13,7 +13,7 @@ from tetdose.cli import main
 from tetdose.dicom import write_ct_series_4d
 from tetdose.errors import ImageError
 from tetdose.image import Image, ImageGrid
-from tetdose.io import write_mesh
+from tetdose.io import read_image, write_mesh
 from tetdose.motion.dvf import DisplacementField, read_dvf
 from tetdose.motion.phases import PhaseSeries
 from tetdose.motion.register import (
@@ -157,6 +157,22 @@ def test_cli_register_deform_evaluate_chain(tmp_path):
     for r in rows:  # the mesh moved with the lung: its mass is the lung's in both phases
         assert r["mass_error_in_mesh_pct"] < 100.0 and np.isfinite(r["rmde_pct"])
     assert (tmp_path / "ev" / "phase_050.0.png").exists()
+
+    # the real phase CTs as the bodies of the hybrid 4D dose, then the comparison
+    (tmp_path / "plan.toml").write_text('[[beam]]\ntype = "parallel"\nenergy_mev = 1.25\n'
+                                        'position_mm = [0.0, -200.0, 0.0]\n'
+                                        'direction = [0.0, 1.0, 0.0]\nfield_mm = [40.0, 40.0]\n')
+    assert main(["dose4d", "-q", "--phases", str(tmp_path / "ph"), "--ct4d",
+                 str(tmp_path / "ct4d"), "--plan", str(tmp_path / "plan.toml"), "--histories",
+                 "2e3", "-o", str(tmp_path / "d4")]) == 0
+    d4 = json.loads((tmp_path / "d4" / "summary.json").read_text())
+    assert d4["world"] == "hybrid" and all(p["lost_photons"] == 0 for p in d4["phases"])
+    body = read_image(tmp_path / "d4" / "body" / "accumulated_combined.nrrd")
+    assert body.grid.same_as(ct.grid) and body.array.max() > 0
+    assert main(["compare", "-q", "--mesh-dose", str(tmp_path / "d4"), "--voxel-dose",
+                 str(tmp_path / "d4" / "voxel" / "accumulated_energy_mass_transfer.nrrd"),
+                 "-o", str(tmp_path / "cmp")]) == 0
+    assert json.loads((tmp_path / "cmp" / "summary.json").read_text())["region"]["voxels"] > 0
     assert main(["evaluate", "--phases", str(tmp_path / "ph"), "-o", str(tmp_path / "x")]) == 2
 
 

@@ -10,6 +10,7 @@ from tetdose.cli._dose import add_dask_arg, dask_context
 from tetdose.dose4d import run_dose4d, write_dose4d
 from tetdose.errors import OptionError
 from tetdose.io import read_image
+from tetdose.motion.ct4d_read import find_phase, read_4dct
 from tetdose.motion.dvf import read_dvf
 from tetdose.motion.phases import PhaseSeries
 from tetdose.transport import Plan, TransportSettings
@@ -27,6 +28,10 @@ def add_args(p: argparse.ArgumentParser) -> None:
                    help="reference CT: every phase's mesh runs inside the phase's body (the "
                         "hybrid world), and the voxel-only dose on the same body is accumulated "
                         "by direct dose mapping and energy/mass transfer")
+    p.add_argument("--ct4d", nargs="+", type=Path, metavar="CT4D",
+                   help="a real 4D-CT (folder of phase series, or phase image files): each "
+                        "phase's CT, matched to the mesh phase by its percentage, is that "
+                        "phase's body (on one grid)")
     p.add_argument("--dvf", nargs="+", type=Path, metavar="IMAGE",
                    help="with --like: the phases' displacement fields (as for `tetdose deform "
                         "--dvf`): the reference CT warped by each is the body outside the mesh")
@@ -45,11 +50,18 @@ def run(args: argparse.Namespace) -> int:
     ct = read_image(args.like) if args.like else None
     if args.dvf and ct is None:
         raise OptionError("--dvf warps the reference CT of --like; give --like too")
+    if args.dvf and args.ct4d:
+        raise OptionError("give either --ct4d (the real phase CTs are the bodies) or --dvf "
+                          "(the warped reference CT is), not both")
     dvfs = [read_dvf(f) for f in args.dvf] if args.dvf else None
+    phase_ct = None
+    if args.ct4d:
+        ct4d = read_4dct(args.ct4d[0] if len(args.ct4d) == 1 else args.ct4d)
+        phase_ct = [ct4d[find_phase(ct4d, float(pct))].image for pct in series.phase_percent]
     with dask_context(args.dask) as client:
         result = run_dose4d(series, plan, settings, ct_hu=ct, calibration=calibration_from(args),
-                            dvfs=dvfs, progress=not args.quiet, client=client,
-                            batches_per_task=args.batches_per_task)
+                            phase_ct=phase_ct, dvfs=dvfs, progress=not args.quiet,
+                            client=client, batches_per_task=args.batches_per_task)
     write_dose4d(result, args.output)
     acc = result.accumulated
     print(f"{series.n_phases} phases × {settings.n_histories} histories: accumulated dose max "
