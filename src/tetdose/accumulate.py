@@ -40,7 +40,7 @@ import numpy as np
 from tetdose._constants import MM3_PER_CM3
 from tetdose._typing import FloatArray
 from tetdose.compare.resample import interpolate_at_points, locate_points, tet_mass_g
-from tetdose.errors import TopologyMismatchError
+from tetdose.errors import DensityError, OptionError, TopologyMismatchError
 from tetdose.image import Image, ImageGrid
 from tetdose.mesh import TetMesh
 
@@ -70,7 +70,8 @@ def phase_weights(weights: FloatArray | None, n_phases: int) -> FloatArray:
         return np.full(n_phases, 1.0 / n_phases)
     w = np.asarray(weights, dtype=np.float64).reshape(-1)
     if len(w) != n_phases or np.any(w < 0) or w.sum() <= 0:
-        raise ValueError(f"need {n_phases} non-negative phase weights with a positive sum, got {w}")
+        raise OptionError(f"phase weights {w} are unusable: give {n_phases} non-negative "
+                          "weights with a positive sum (one per phase)")
     return w / w.sum()
 
 
@@ -84,7 +85,7 @@ def phase_mass_spread(mass_g: FloatArray) -> float:
 
 
 def check_phase_totals(mass_g: FloatArray, *, rtol: float = MASS_RTOL) -> None:
-    """Raise :class:`ValueError` naming the phase whose total mass [g] differs by > ``rtol``."""
+    """Raise :class:`~tetdose.errors.DensityError` naming the phase whose total mass [g] differs by > ``rtol``."""
     m = np.asarray(mass_g, dtype=np.float64)
     if m.ndim != 2:
         raise TopologyMismatchError(f"masses must have shape (phases, tets), got {m.shape}")
@@ -92,7 +93,7 @@ def check_phase_totals(mass_g: FloatArray, *, rtol: float = MASS_RTOL) -> None:
     rel = np.abs(total - total.mean()) / total.mean()
     p = int(np.argmax(rel))
     if rel[p] > rtol:
-        raise ValueError(
+        raise DensityError(
             f"phase {p} holds {total[p]:.9g} g, the phases {total.mean():.9g} g on average "
             f"(relative {rel[p]:.3g} > {rtol:g}); the matter must be the same in every phase: "
             "update the phase densities with tetdose.motion.conserve (tetdose deform) first")
@@ -128,7 +129,8 @@ def accumulate_meshes(phases: Sequence[TetMesh], dose_gy: Sequence[FloatArray], 
     for mesh in phases[1:]:
         phases[0].same_topology(mesh)
     if any("density" not in mesh.point_data for mesh in phases):
-        raise ValueError("every phase mesh needs point_data 'density' (g/cm³) for its tet masses")
+        raise DensityError("a phase mesh has no point_data 'density' (g/cm³) for its tet masses: "
+                           "map or deform the phases with densities first (tetdose map/deform)")
     mass = np.stack([tet_mass_g(mesh) for mesh in phases])
     std = None if dose_std_gy is None else np.stack(dose_std_gy)
     return accumulate_mesh_dose(np.stack(dose_gy), mass, weights=weights, dose_std_gy=std,
@@ -184,7 +186,8 @@ def direct_dose_mapping(reference: TetMesh, phase_points_mm: FloatArray,
     pts = np.asarray(phase_points_mm, dtype=np.float64)
     w = phase_weights(weights, len(phase_dose))
     if len(pts) != len(phase_dose):
-        raise ValueError(f"{len(pts)} phase point sets for {len(phase_dose)} phase doses")
+        raise OptionError(f"{len(pts)} phase point sets for {len(phase_dose)} phase doses: "
+                          "give one dose image per phase")
     centres = grid.voxel_centers_mm()
     total = np.zeros(grid.n_voxels)
     for p, dose in enumerate(phase_dose):
@@ -201,9 +204,11 @@ def energy_mass_transfer(reference: TetMesh, phase_points_mm: FloatArray,
     pts = np.asarray(phase_points_mm, dtype=np.float64)
     w = phase_weights(weights, len(phase_dose))
     if not len(pts) == len(phase_dose) == len(phase_density_g_cm3):
-        raise ValueError("need as many phase point sets, doses and density images")
+        raise OptionError(f"{len(pts)} phase point sets, {len(phase_dose)} doses and "
+                          f"{len(phase_density_g_cm3)} density images: give one of each per phase")
     if subdivisions < 1:
-        raise ValueError(f"subdivisions must be ≥ 1, got {subdivisions}")
+        raise OptionError(f"subdivisions must be an integer ≥ 1, got {subdivisions}; "
+                          "use 2 (8 sub-voxels per voxel) or more")
     energy = np.zeros(grid.n_voxels)
     mass = np.zeros(grid.n_voxels)
     for p, (dose, rho) in enumerate(zip(phase_dose, phase_density_g_cm3, strict=True)):

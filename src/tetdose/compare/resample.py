@@ -27,7 +27,7 @@ import numpy as np
 from tetdose._constants import MM3_PER_CM3
 from tetdose._typing import FloatArray, IntArray
 from tetdose.compare import _locate_kernels
-from tetdose.errors import GeometryMismatchError
+from tetdose.errors import DensityError, DoseError, GeometryMismatchError
 from tetdose.image import Image, ImageGrid
 from tetdose.mapping.overlap import Overlap, compute_overlap
 from tetdose.mesh import TetMesh
@@ -42,8 +42,8 @@ def vertex_density(mesh: TetMesh, density_g_cm3: FloatArray | None) -> FloatArra
         density_g_cm3 = mesh.point_data.get("density", np.ones(mesh.n_points))
     rho = np.asarray(density_g_cm3, dtype=np.float64)
     if rho.shape != (mesh.n_points,):
-        raise ValueError(f"density must have one value per point ({mesh.n_points}), "
-                         f"got shape {rho.shape}")
+        raise DensityError(f"density must have one value per mesh point ({mesh.n_points}), got "
+                           f"shape {rho.shape}: pass the density of this mesh's points")
     return rho
 
 
@@ -77,7 +77,7 @@ def mesh_dose_to_grid(mesh: TetMesh, dose_gy: FloatArray, grid: ImageGrid, *,
                       density_g_cm3: FloatArray | None = None, overlap: Overlap | None = None
                       ) -> Image:
     """Voxel dose [Gy] D_j = Σ_k D_k m_kj / Σ_k m_kj of a per-tet dose (module docstring)."""
-    dose = _per_tet(mesh, dose_gy)
+    dose = per_tet_dose(mesh, dose_gy)
     ov = _overlap_for(mesh, grid, overlap)
     m_kj = pair_mass_g(mesh, ov, density_g_cm3)
     energy = np.bincount(ov.voxel, weights=dose[ov.tet] * m_kj, minlength=grid.n_voxels)
@@ -110,11 +110,12 @@ def grid_dose_to_mesh(mesh: TetMesh, dose: Image, *, density_g_cm3: FloatArray |
     return _ratio(energy_k, mass_k)
 
 
-def _per_tet(mesh: TetMesh, dose_gy: FloatArray) -> FloatArray:
+def per_tet_dose(mesh: TetMesh, dose_gy: FloatArray) -> FloatArray:
+    """``dose_gy`` as a float64 (M,) array, one value [Gy] per tetrahedron of ``mesh``."""
     dose = np.asarray(dose_gy, dtype=np.float64)
     if dose.shape != (mesh.n_tets,):
-        raise ValueError(f"dose must have one value per tetrahedron ({mesh.n_tets}), "
-                         f"got shape {dose.shape}")
+        raise DoseError(f"the dose has shape {dose.shape}, the mesh {mesh.n_tets} tetrahedra: "
+                        "use the dose computed on this mesh")
     return dose
 
 
