@@ -39,9 +39,10 @@ import numpy as np
 
 from tetdose._constants import MM3_PER_CM3
 from tetdose._typing import FloatArray
-from tetdose.compare.resample import interpolate_at_points, locate_points, tet_mass_g
+from tetdose.compare.resample import interpolate_at_points, locate_points
 from tetdose.errors import DensityError, OptionError, TopologyMismatchError
 from tetdose.image import Image, ImageGrid
+from tetdose.mass import tet_mass_g
 from tetdose.mesh import TetMesh
 
 #: Largest relative difference of a phase's total mass from the phases' mean accepted by default
@@ -85,7 +86,7 @@ def phase_mass_spread(mass_g: FloatArray) -> float:
 
 
 def check_phase_totals(mass_g: FloatArray, *, rtol: float = MASS_RTOL) -> None:
-    """Raise :class:`~tetdose.errors.DensityError` naming the phase whose total mass [g] differs by > ``rtol``."""
+    """Raise :class:`DensityError` naming the phase whose total mass [g] differs by > ``rtol``."""
     m = np.asarray(mass_g, dtype=np.float64)
     if m.ndim != 2:
         raise TopologyMismatchError(f"masses must have shape (phases, tets), got {m.shape}")
@@ -128,9 +129,6 @@ def accumulate_meshes(phases: Sequence[TetMesh], dose_gy: Sequence[FloatArray], 
     """:func:`accumulate_mesh_dose` for phase meshes carrying point_data ``density`` [g/cm³]."""
     for mesh in phases[1:]:
         phases[0].same_topology(mesh)
-    if any("density" not in mesh.point_data for mesh in phases):
-        raise DensityError("a phase mesh has no point_data 'density' (g/cm³) for its tet masses: "
-                           "map or deform the phases with densities first (tetdose map/deform)")
     mass = np.stack([tet_mass_g(mesh) for mesh in phases])
     std = None if dose_std_gy is None else np.stack(dose_std_gy)
     return accumulate_mesh_dose(np.stack(dose_gy), mass, weights=weights, dose_std_gy=std,
@@ -229,7 +227,8 @@ def energy_mass_transfer(reference: TetMesh, phase_points_mm: FloatArray,
             ids = candidates[lo:lo + EMT_CHUNK]
             sub = _sub_voxel_centres(dose.grid, ids, subdivisions)
             back = _carry(phase_mesh, reference.points_mm, sub)
-            target, ok = _voxel_of(grid, back)
+            target = grid.voxel_of(back)
+            ok = target >= 0
             src = np.repeat(ids, subdivisions**3)[ok]
             frac = w[p] / subdivisions**3
             energy += np.bincount(target[ok], weights=frac * d_vox[src] * m_vox[src],
@@ -256,11 +255,3 @@ def _sub_voxel_centres(grid: ImageGrid, ids: np.ndarray, s: int) -> FloatArray:
     sub = np.stack(np.meshgrid(t, t, t, indexing="ij"), axis=-1).reshape(-1, 3)
     return grid.index_to_physical((base[:, None, :] + sub[None, :, :]).reshape(-1, 3))
 
-
-def _voxel_of(grid: ImageGrid, points_mm: FloatArray) -> tuple[np.ndarray, np.ndarray]:
-    """Flat id of the voxel containing each point, and whether it lies inside the grid."""
-    idx = np.floor(grid.physical_to_index(points_mm) + 0.5).astype(np.int64)
-    size = np.array(grid.size)
-    ok = np.all((idx >= 0) & (idx < size), axis=1)
-    idx = np.where(ok[:, None], idx, 0)
-    return (idx[:, 2] * size[1] + idx[:, 1]) * size[0] + idx[:, 0], ok

@@ -14,9 +14,10 @@ from tetdose.accumulate import (
     moved_points,
     phase_mass_spread,
 )
-from tetdose.compare.resample import mesh_dose_to_grid, tet_mass_g
+from tetdose.compare.resample import mesh_dose_to_grid
 from tetdose.errors import TopologyMismatchError
 from tetdose.image import Image, ImageGrid
+from tetdose.mass import tet_mass_g
 from tetdose.mesh import TetMesh
 from tetdose.phantoms import mesh_labels
 from tetdose.voxelize import voxelize

@@ -16,9 +16,9 @@ from tetdose.compare.resample import (
     locate_points,
     mesh_dose_to_grid,
     mesh_mass_on_grid,
-    tet_mass_g,
 )
 from tetdose.image import Image, ImageGrid
+from tetdose.mass import tet_mass_g
 from tetdose.mesh import TetMesh
 from tetdose.phantoms import mesh_labels
 

@@ -66,15 +66,6 @@ def dask_context(spec: str | None) -> Any:  # noqa: ANN401 - context manager
     return dask_client(spec)
 
 
-def _simulate(client: Any, geometry: Any, plan: Any, settings: Any, **kw: Any) -> Any:  # noqa: ANN401
-    from tetdose.transport import simulate
-    from tetdose.transport.distributed import simulate_distributed
-
-    if client is None:
-        return simulate(geometry, plan, settings, **kw)
-    return simulate_distributed(client, geometry, plan, settings, **kw)
-
-
 def load_plan(plan_toml: Path | None, rtplan: Path | None) -> Any:  # noqa: ANN401
     """``--plan`` and/or ``--rtplan``: the RT Plan's beams join the plan.toml's."""
     from tetdose.dicom.rt_plan import read_rt_plan
@@ -113,6 +104,7 @@ def run(args: argparse.Namespace) -> int:
     from tetdose.io import read_image, read_mesh, write_image, write_mesh
     from tetdose.prescription import prescribe_result
     from tetdose.transport import TransportSettings, World
+    from tetdose.transport.distributed import simulate_on
 
     if args.mesh is None and args.ct is None:
         raise PlanError("give --mesh (a mapped mesh), --ct (a CT), or both (the mesh inside "
@@ -143,7 +135,7 @@ def run(args: argparse.Namespace) -> int:
     world = World(mesh=mesh, density=density, labels=labels)
     plan = plan.resolved(world)
     with dask_context(args.dask) as client:
-        result = _simulate(client, world, plan, settings, progress=progress)
+        result = simulate_on(client, world, plan, settings, progress=progress)
     result = prescribe_result(result, plan, world)
     outputs: list[str] = []
     if mesh is not None:

@@ -11,9 +11,8 @@ from tetdose.compare.resample import (
     locate_points,
     mesh_dose_to_grid,
     mesh_mass_on_grid,
-    tet_mass_g,
 )
 
 __all__ = ["DVH", "GammaResult", "Profile", "dvh", "gamma_index", "grid_dose_to_mesh",
            "image_dvh", "image_profile", "locate_points", "mesh_dose_to_grid", "mesh_dvh",
-           "mesh_mass_on_grid", "mesh_profile", "tet_mass_g"]
+           "mesh_mass_on_grid", "mesh_profile"]

@@ -21,9 +21,10 @@ import numpy as np
 
 from tetdose._constants import MM3_PER_CM3
 from tetdose._typing import BoolArray, FloatArray
-from tetdose.compare.resample import per_tet_dose, tet_mass_g
+from tetdose.compare.resample import per_tet_dose, vertex_density
 from tetdose.errors import DoseError, OptionError
 from tetdose.image import Image
+from tetdose.mass import tet_mass_g
 from tetdose.mesh import TetMesh
 
 WEIGHTS = ("volume", "mass")
@@ -93,7 +94,7 @@ def mesh_dvh(mesh: TetMesh, dose_gy: FloatArray, *, region: int | None = None,
     if weight not in WEIGHTS:
         raise OptionError(f"DVH weight must be one of {WEIGHTS}, got {weight!r}")
     w = (mesh.volumes_mm3 / MM3_PER_CM3 if weight == "volume"
-         else tet_mass_g(mesh, density_g_cm3))
+         else tet_mass_g(mesh, vertex_density(mesh, density_g_cm3)))
     dose = per_tet_dose(mesh, dose_gy)
     if region is not None:
         if mesh.region is None:

@@ -24,12 +24,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from tetdose._constants import MM3_PER_CM3
 from tetdose._typing import FloatArray, IntArray
 from tetdose.compare import _locate_kernels
 from tetdose.errors import DensityError, DoseError, GeometryMismatchError
 from tetdose.image import Image, ImageGrid
 from tetdose.mapping.overlap import Overlap, compute_overlap
+from tetdose.mass import pair_mass_g
 from tetdose.mesh import TetMesh
 
 #: A point counts as inside a tetrahedron when its smallest barycentric coordinate is ≥ −this.
@@ -47,17 +47,10 @@ def vertex_density(mesh: TetMesh, density_g_cm3: FloatArray | None) -> FloatArra
     return rho
 
 
-def tet_mass_g(mesh: TetMesh, density_g_cm3: FloatArray | None = None) -> FloatArray:
-    """Mass of each tetrahedron [g]: m_k = Vol(T_k) [cm³] · mean of its vertex densities."""
-    rho = vertex_density(mesh, density_g_cm3)
-    return mesh.volumes_mm3 * rho[mesh.tets].mean(axis=1) / MM3_PER_CM3
-
-
-def pair_mass_g(mesh: TetMesh, overlap: Overlap, density_g_cm3: FloatArray | None = None
-                ) -> FloatArray:
-    """(P,) mass m_kj [g] of each overlap pair (tet k, voxel j), exact for linear density."""
-    rho = vertex_density(mesh, density_g_cm3)
-    return np.einsum("pa,pa->p", rho[mesh.tets[overlap.tet]], overlap.bary_mm3) / MM3_PER_CM3
+def weighted_pair_mass_g(mesh: TetMesh, overlap: Overlap,
+                         density_g_cm3: FloatArray | None = None) -> FloatArray:
+    """(P,) mass m_kj [g] of each overlap pair (tet k, voxel j) with :func:`vertex_density`."""
+    return pair_mass_g(mesh, overlap, vertex_density(mesh, density_g_cm3))
 
 
 def _overlap_for(mesh: TetMesh, grid: ImageGrid, overlap: Overlap | None) -> Overlap:
@@ -79,7 +72,7 @@ def mesh_dose_to_grid(mesh: TetMesh, dose_gy: FloatArray, grid: ImageGrid, *,
     """Voxel dose [Gy] D_j = Σ_k D_k m_kj / Σ_k m_kj of a per-tet dose (module docstring)."""
     dose = per_tet_dose(mesh, dose_gy)
     ov = _overlap_for(mesh, grid, overlap)
-    m_kj = pair_mass_g(mesh, ov, density_g_cm3)
+    m_kj = weighted_pair_mass_g(mesh, ov, density_g_cm3)
     energy = np.bincount(ov.voxel, weights=dose[ov.tet] * m_kj, minlength=grid.n_voxels)
     mass = np.bincount(ov.voxel, weights=m_kj, minlength=grid.n_voxels)
     return Image(_ratio(energy, mass).reshape(grid.shape), grid)
@@ -89,7 +82,7 @@ def mesh_mass_on_grid(mesh: TetMesh, grid: ImageGrid, *, density_g_cm3: FloatArr
                       overlap: Overlap | None = None) -> Image:
     """Mesh mass in each voxel [g], m_j = Σ_k m_kj (the voxel mass of the maps)."""
     ov = _overlap_for(mesh, grid, overlap)
-    mass = np.bincount(ov.voxel, weights=pair_mass_g(mesh, ov, density_g_cm3),
+    mass = np.bincount(ov.voxel, weights=weighted_pair_mass_g(mesh, ov, density_g_cm3),
                        minlength=grid.n_voxels)
     return Image(mass.reshape(grid.shape), grid)
 
@@ -103,7 +96,7 @@ def grid_dose_to_mesh(mesh: TetMesh, dose: Image, *, density_g_cm3: FloatArray |
     """
     grid = dose.grid
     ov = _overlap_for(mesh, grid, overlap)
-    m_kj = pair_mass_g(mesh, ov, density_g_cm3)
+    m_kj = weighted_pair_mass_g(mesh, ov, density_g_cm3)
     d_j = np.asarray(dose.array, dtype=np.float64).ravel()
     energy_k = np.bincount(ov.tet, weights=d_j[ov.voxel] * m_kj, minlength=mesh.n_tets)
     mass_k = np.bincount(ov.tet, weights=m_kj, minlength=mesh.n_tets)
