@@ -26,13 +26,13 @@ import numpy as np
 from tetdose.accumulate import direct_dose_mapping, energy_mass_transfer
 from tetdose.compare.dvh import image_dvh, mesh_dvh
 from tetdose.compare.gamma import gamma_index
-from tetdose.compare.resample import grid_dose_to_mesh, mesh_dose_to_grid
 from tetdose.dose4d import run_dose4d
 from tetdose.mapping import map_density
 from tetdose.motion import BreathingModel, update_series
 from tetdose.motion.ct4d import phase_densities
 from tetdose.phantoms import make_phantom
 from tetdose.study import STRUCTURES, StudyConfig, _covered, _plan
+from tetdose.transfer import grid_dose_to_mesh, mesh_dose_to_grid
 from tetdose.transport import TransportSettings, simulate
 
 T0 = time.perf_counter()

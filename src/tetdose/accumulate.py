@@ -39,11 +39,11 @@ import numpy as np
 
 from tetdose._constants import MM3_PER_CM3
 from tetdose._typing import FloatArray
-from tetdose.compare.resample import interpolate_at_points, locate_points
 from tetdose.errors import DensityError, OptionError, TopologyMismatchError
 from tetdose.image import Image, ImageGrid
 from tetdose.mass import tet_mass_g
 from tetdose.mesh import TetMesh
+from tetdose.transfer import interpolate_at_points, locate_points
 
 #: Largest relative difference of a phase's total mass from the phases' mean accepted by default
 #: (the L2 update keeps it to 1e-15, the paper's least squares to ~1e-4; densities left

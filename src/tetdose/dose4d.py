@@ -176,7 +176,7 @@ def _bodies(series: PhaseSeries, ct_hu: Image | None, phase_ct: list[Image] | No
 def _body_way(series: PhaseSeries, accumulated: AccumulatedDose,
               results: list[DoseResult]) -> BodyDose4D:
     """Voxel part accumulated per voxel, and the combined (mesh + voxel) dose on the grid."""
-    from tetdose.compare.resample import mesh_dose_to_grid, mesh_mass_on_grid
+    from tetdose.transfer import mesh_dose_to_grid, mesh_mass_on_grid
 
     grid = results[0].grid
     parts = [r.voxel_part() for r in results]

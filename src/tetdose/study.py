@@ -38,7 +38,6 @@ from tetdose.compare.report import (
     render_png,
     write_report,
 )
-from tetdose.compare.resample import grid_dose_to_mesh, mesh_dose_to_grid
 from tetdose.dicom import write_rt_dose
 from tetdose.dose4d import run_dose4d, write_dose4d
 from tetdose.image import Image
@@ -52,6 +51,7 @@ from tetdose.motion import BreathingModel, update_series
 from tetdose.motion.ct4d import phase_densities, to_hu, write_4dct
 from tetdose.phantoms import Phantom, make_phantom, mesh_labels, write_phantom
 from tetdose.prescription import Prescription
+from tetdose.transfer import grid_dose_to_mesh, mesh_dose_to_grid
 from tetdose.transport import Plan, TransportSettings
 from tetdose.transport.beams import ControlPoint, LinacBeam
 from tetdose.transport.buildup import build_up_fraction, build_up_mask

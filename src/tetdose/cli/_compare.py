@@ -81,9 +81,9 @@ def _read_mesh_dose(path: Path):  # noqa: ANN202 - (TetMesh, dose)
 
 def _run_compare(args: argparse.Namespace) -> int:
     from tetdose.compare.report import write_report
-    from tetdose.compare.resample import mesh_dose_to_grid
     from tetdose.io import read_image
     from tetdose.mapping.overlap import compute_overlap
+    from tetdose.transfer import mesh_dose_to_grid
 
     mesh, dose = _read_mesh_dose(_find(args.mesh_dose, "accumulated", MESH_SUFFIXES, "mesh"))
     voxel = read_image(_find(args.voxel_dose, "accumulated", (".nrrd", ".mha", ".nii.gz"),
@@ -201,10 +201,10 @@ def _tet_voxels(mesh, grid) -> np.ndarray:  # noqa: ANN001
 
 
 def _run_export(args: argparse.Namespace) -> int:
-    from tetdose.compare.resample import interpolate_at_points, mesh_dose_to_grid
     from tetdose.dicom.rt_dose import write_rt_dose
     from tetdose.image import Image
     from tetdose.io import read_image
+    from tetdose.transfer import interpolate_at_points, mesh_dose_to_grid
 
     like = read_image(args.like)
     grid = like.grid

@@ -103,7 +103,7 @@ def _ds(x: float) -> str:
 
 
 def _beam_item(b: LinacBeam, number: int, setup: int) -> Dataset:
-    from tetdose.transport.spectra import _canonical
+    from tetdose.transport.spectra import canonical_name
 
     mlc = next((s.mlc for s in b.segments if s.mlc is not None), None)
     devices = [_item(RTBeamLimitingDeviceType="ASYMX", NumberOfLeafJawPairs=1),
@@ -127,17 +127,17 @@ def _beam_item(b: LinacBeam, number: int, setup: int) -> Dataset:
                  NumberOfControlPoints=len(cps), ReferencedPatientSetupNumber=setup)
     item.BeamLimitingDeviceSequence = devices
     item.ControlPointSequence = cps
-    item.BeamDescription = f"{_canonical(b.spectrum)} (tetdose spectrum)"
+    item.BeamDescription = f"{canonical_name(b.spectrum)} (tetdose spectrum)"
     return item
 
 
 def _control_point(b: LinacBeam, seg: ControlPoint, index: int, weight: float,
                    with_mlc: bool) -> Dataset:
-    from tetdose.transport.spectra import _canonical
+    from tetdose.transport.spectra import canonical_name
 
     cp = _item(ControlPointIndex=index, CumulativeMetersetWeight=_ds(min(weight, 1.0)))
     if index == 0:
-        cp.NominalBeamEnergy = _ds(_NOMINAL_MV[str(_canonical(b.spectrum))])
+        cp.NominalBeamEnergy = _ds(_NOMINAL_MV[str(canonical_name(b.spectrum))])
         cp.IsocenterPosition = [_ds(v) for v in b.isocenter_mm]
         cp.TableTopEccentricAngle = "0"  # DS
         cp.TableTopPitchAngle = 0.0  # FL

@@ -1,4 +1,8 @@
-"""Dose between a tetrahedral mesh and a voxel grid, conserving deposited energy; point location.
+"""Mesh ↔ voxel-grid transfer of dose, conserving deposited energy; point location in a mesh.
+
+The neutral foundation of comparison (:mod:`tetdose.compare`), accumulation
+(:mod:`tetdose.accumulate`) and the 4D dose (:mod:`tetdose.dose4d`): it imports only the mesh,
+the image, the overlap and the masses, never those modules.
 
 Both directions go through the exact tet ∩ voxel overlap (:mod:`tetdose.mapping.overlap`). With
 the vertex density ρ linear in each tetrahedron, the mass of tet k inside voxel j is
@@ -24,8 +28,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from tetdose import _locate_kernels
 from tetdose._typing import FloatArray, IntArray
-from tetdose.compare import _locate_kernels
 from tetdose.errors import DensityError, DoseError, GeometryMismatchError
 from tetdose.image import Image, ImageGrid
 from tetdose.mapping.overlap import Overlap, compute_overlap
