@@ -30,7 +30,7 @@ import numpy as np
 
 from tetdose import _locate_kernels
 from tetdose._typing import FloatArray, IntArray
-from tetdose.errors import DensityError, DoseError, GeometryMismatchError
+from tetdose.errors import DensityError, DoseError, GeometryMismatchError, ImageError
 from tetdose.image import Image, ImageGrid
 from tetdose.mapping.overlap import Overlap, compute_overlap
 from tetdose.mass import pair_mass_g
@@ -181,3 +181,20 @@ def interpolate_at_points(image: Image, points_mm: FloatArray, *, outside: float
     vals = map_coordinates(np.asarray(image.array, dtype=np.float64), coords, order=1,
                            mode="nearest")
     return np.where(inside, vals, outside)
+
+
+def dose_on_grid(dose: tuple[TetMesh, FloatArray] | Image, grid: ImageGrid, *,
+                 what: str = "the dose image") -> Image:
+    """A dose on ``grid`` [its unit], negative values clipped to 0: a (mesh, per-tet dose) pair
+    through :func:`mesh_dose_to_grid` (energy-conserving), or a dose image trilinearly
+    (:func:`interpolate_at_points`, 0 outside it) unless it is on ``grid`` already."""
+    if isinstance(dose, Image):
+        if dose.array.ndim != 3:
+            raise ImageError(f"{what} is not a 3-D dose image; give a 3-D dose (.nrrd, .mha …)")
+        img = dose if dose.grid.same_as(grid) else Image(
+            interpolate_at_points(dose, grid.voxel_centers_mm(), outside=0.0).reshape(grid.shape),
+            grid)
+    else:
+        mesh, dose_gy = dose
+        img = mesh_dose_to_grid(mesh, dose_gy, grid)
+    return Image(np.clip(np.asarray(img.array, dtype=np.float64), 0.0, None), grid)
