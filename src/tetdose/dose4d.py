@@ -107,6 +107,7 @@ class Dose4D:
                        for k, r in enumerate(self.results)],
             "accumulated_max_dose_gy": float(self.accumulated.dose_gy.max()),
             "weights": self.accumulated.weights.tolist(),
+            "units": {"dose": self.results[0].record()["units"]["dose"]},
         }
         if self.body is not None:
             out["body_accumulated_max_dose_gy"] = float(self.body.accumulated.array.max())

@@ -150,11 +150,11 @@ def run(args: argparse.Namespace) -> int:
             voxels_out = _sibling(args.output, "_voxels", "nrrd")
             write_image(voxels_out, part.with_array(part.array.astype(np.float32)))
             outputs.append(str(voxels_out))
-    result.extra.update(extra, world=world.kind, outputs=outputs)
+    result = result.with_extra(**extra, world=world.kind, outputs=outputs)
     path = result.save_json(record_path(args.output))
     if not args.quiet:
         led = result.ledger
-        unit = result.extra.get("units", {}).get("dose", "Gy")
+        unit = result.record()["units"]["dose"]
         print(f"dose ({world.kind}): {result.n_histories} histories in {result.wall_s:.1f} s; "
               f"max {result.dose_gy.max():.4g} {unit}; deposited {led['deposited_mev']:.4g} MeV and "
               f"escaped {led['escaped_mev']:.4g} MeV per particle → {', '.join(outputs)}, {path}")

@@ -10,6 +10,7 @@ from tetdose.cli._dose import add_dask_arg, dask_context
 from tetdose.dose4d import run_dose4d, write_dose4d
 from tetdose.io import read_image
 from tetdose.motion.phases import PhaseSeries
+from tetdose.prescription import PER_PHOTON_UNIT
 from tetdose.transport import Plan, TransportSettings
 
 
@@ -42,7 +43,9 @@ def run(args: argparse.Namespace) -> int:
                             progress=not args.quiet, client=client,
                             batches_per_task=args.batches_per_task)
     write_dose4d(result, args.output)
-    acc = result.accumulated
+    unit = result.summary()["units"]["dose"]
+    if unit == PER_PHOTON_UNIT and plan.particles != 1.0:
+        unit = f"Gy per {plan.particles:g} source photons"
     print(f"{series.n_phases} phases × {settings.n_histories} histories: accumulated dose max "
-          f"{acc.dose_gy.max():.4g} Gy per {plan.particles:g} particles → {args.output}")
+          f"{result.accumulated.dose_gy.max():.4g} {unit} → {args.output}")
     return 0
