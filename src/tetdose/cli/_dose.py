@@ -19,6 +19,7 @@ import numpy as np
 
 from tetdose.cli._common import add_calibration_arg, calibration_from
 from tetdose.errors import PlanError
+from tetdose.transport.model import ESTIMATORS
 
 MESH_SUFFIXES = (".vtu", ".vtk", ".xdmf", ".msh")
 
@@ -37,7 +38,7 @@ def add_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--histories", type=float, default=1e6, help="source photons (e.g. 1e7)")
     parser.add_argument("--seed", type=int, default=1, help="master random seed")
     parser.add_argument("--batches", type=int, default=10, help="independent batches (for σ)")
-    parser.add_argument("--estimator", choices=("track_length", "analog"),
+    parser.add_argument("--estimator", choices=ESTIMATORS,
                         default="track_length", help="dose tally (default: track_length)")
     parser.add_argument("--cutoff-mev", type=float, default=0.01,
                         help="photon energy cut-off, deposited locally [MeV]")

@@ -12,6 +12,7 @@ from tetdose.io import read_image
 from tetdose.motion.phases import PhaseSeries
 from tetdose.prescription import PER_PHOTON_UNIT
 from tetdose.transport import Plan, TransportSettings
+from tetdose.transport.model import ESTIMATORS
 
 
 def add_args(p: argparse.ArgumentParser) -> None:
@@ -21,7 +22,8 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--histories", type=float, default=1e6, help="source photons per phase")
     p.add_argument("--seed", type=int, default=1, help="master random seed")
     p.add_argument("--batches", type=int, default=10, help="independent batches (for σ)")
-    p.add_argument("--estimator", choices=("track_length", "analog"), default="track_length")
+    p.add_argument("--estimator", choices=ESTIMATORS, default="track_length",
+                   help="dose tally (default: track_length)")
     p.add_argument("--like", type=Path,
                    help="reference CT: also compute voxel doses on the virtual 4D-CT and "
                         "accumulate them by direct dose mapping and energy/mass transfer")

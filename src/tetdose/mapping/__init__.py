@@ -18,11 +18,9 @@ from tetdose.calibration import HUCalibration
 from tetdose.errors import OptionError
 from tetdose.image import Image, ImageGrid, check_ct_hu
 from tetdose.mapping.overlap import Overlap, compute_overlap, warn_if_uncovered
-from tetdose.mapping.solve import project_l2, solve_lsq
+from tetdose.mapping.solve import SOLVERS, project_l2, solve_lsq
 from tetdose.mass import tet_mass_g
 from tetdose.mesh import TetMesh
-
-SOLVERS = ("l2", "lsq")
 
 
 @dataclass(frozen=True, eq=False)

@@ -65,6 +65,7 @@ from tetdose.transport.spectra import is_named, named_spectrum
 if TYPE_CHECKING:
     from tetdose.prescription import Prescription
 
+#: The one spelling of each source kind (plan.toml `type`) and dose estimator (`--estimator`).
 SOURCE_KINDS = ("pencil", "parallel", "point", "linac")
 ESTIMATORS = ("analog", "track_length")
 #: Largest tally (n_batches × n_cells × 8 bytes) accepted by default.
