@@ -43,9 +43,11 @@ def test_a_voxel_dose_equal_to_the_mesh_dose_passes_everywhere(case):
 def test_a_dose_off_by_ten_percent_fails_three_percent_gamma(case):
     mesh, dose, grid = case
     voxel = mesh_dose_to_grid(mesh, 1.1 * dose, grid)
-    s = compare_doses(mesh, dose, voxel, criteria=((3.0, 3.0, False),)).summary
+    result = compare_doses(mesh, dose, voxel, criteria=((3.0, 3.0, False),))
+    s = result.summary
     assert s["gamma"]["3%/3mm global"]["pass_rate_percent"] < 50.0
     assert s["unit"] == PER_PHOTON_UNIT
+    assert result.figures[0].caption.endswith("[Gy per source photon]")
 
 
 def test_refusals(case):

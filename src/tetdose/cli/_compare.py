@@ -21,7 +21,8 @@ def add_args(parser: argparse.ArgumentParser) -> None:
     parser.set_defaults(_compare_command=command)
     if command == "export-dose":
         parser.add_argument("--dose", required=True, type=Path,
-                            help="dose.vtu (cell_data dose, Gy) or a dose image (.nrrd, .mha …)")
+                            help="dose.vtu (cell_data dose: Gy per fraction when prescribed, "
+                                 "else Gy per source photon) or a dose image (.nrrd, .mha …)")
         parser.add_argument("--like", required=True, type=Path,
                             help="the CT (DICOM folder, or image) whose grid the RT Dose uses")
         parser.add_argument("-o", "--output", required=True, type=Path, help="rtdose.dcm")
