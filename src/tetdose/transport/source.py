@@ -9,7 +9,8 @@ import numpy as np
 from tetdose._typing import FloatArray
 from tetdose.errors import PlanError
 from tetdose.transport._source import LINAC, PARALLEL, PENCIL, POINT, SourceArrays
-from tetdose.transport.model import SOURCE_KINDS, PhotonSource, Plan, TransportSettings
+from tetdose.transport.model import Plan, TransportSettings
+from tetdose.transport.photon_source import SOURCE_KINDS, PhotonSource
 
 #: Highest photon energy the interaction tables cover [MeV].
 E_MAX_MEV = 20.0
