@@ -1,12 +1,14 @@
 """The module import graph of tetdose, read statically with ast: no module imports another
-module's private names (``from x import _y``), and the module-level imports have no cycle.
-
-Imports inside functions and under ``if TYPE_CHECKING:`` are deferred and do not take part in
-the cycle check (they cannot fail at import time); they are held to the private-name rule.
+module's private names (``from x import _y``), and the imports have no cycle — neither at module
+level nor through imports deferred into functions (a deferred import that closes a loop is a
+layering fault hidden from the interpreter). Imports under ``if TYPE_CHECKING:`` (annotations
+only) do not count.
 """
 
 import ast
 from pathlib import Path
+
+import pytest
 
 import tetdose
 
@@ -34,25 +36,31 @@ def _owner(name: str) -> str:
     return name
 
 
-def _deferred(tree: ast.Module) -> set[int]:
+def _inside(tree: ast.Module, functions: bool) -> set[int]:
+    """ids of the nodes under ``if TYPE_CHECKING:`` (and inside functions if ``functions``)."""
     ids = set()
     for node in ast.walk(tree):
         type_checking = isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test)
-        if type_checking or isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
+        if type_checking or (functions and isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef)):
             ids |= {id(sub) for sub in ast.walk(node) if sub is not node}
     return ids
 
 
-def _imports(module: str) -> list[tuple[str, str | None, bool]]:
-    """(imported module, imported name or None, deferred) for every tetdose import."""
+def _imports(module: str) -> list[tuple[str, str | None, str]]:
+    """(imported module, imported name or None, "module" | "deferred" | "typing") for every
+    tetdose import of ``module``."""
     path = MODULES[module]
     tree = ast.parse(path.read_text(encoding="utf-8"))
-    deferred = _deferred(tree)
+    typing, lazy = _inside(tree, False), _inside(tree, True)
+
+    def kind(node: ast.AST) -> str:
+        return "typing" if id(node) in typing else "deferred" if id(node) in lazy else "module"
+
     package = module if path.name == "__init__.py" else module.rpartition(".")[0]
     out = []
     for node in ast.walk(tree):
         if isinstance(node, ast.Import):
-            out += [(a.name, None, id(node) in deferred) for a in node.names
+            out += [(a.name, None, kind(node)) for a in node.names
                     if a.name.split(".")[0] == "tetdose"]
         elif isinstance(node, ast.ImportFrom):
             base = node.module or ""
@@ -60,7 +68,7 @@ def _imports(module: str) -> list[tuple[str, str | None, bool]]:
                 parts = package.split(".")[:len(package.split(".")) - node.level + 1]
                 base = ".".join(parts + ([base] if base else []))
             if base.split(".")[0] == "tetdose":
-                out += [(base, a.name, id(node) in deferred) for a in node.names]
+                out += [(base, a.name, kind(node)) for a in node.names]
     return out
 
 
@@ -121,13 +129,18 @@ def test_cycle_finder_finds_a_planted_cycle():
     assert _cycles({"a": {"b"}, "b": set()}) == []
 
 
-def test_module_level_imports_have_no_cycle():
+def _graph(kinds: set[str]) -> dict[str, set[str]]:
     edges: dict[str, set[str]] = {m: set() for m in MODULES}
     for module in MODULES:
-        for base, name, deferred in _imports(module):
-            if deferred:
-                continue
+        for base, name, kind in _imports(module):
             target = f"{base}.{name}" if name and f"{base}.{name}" in MODULES else _owner(base)
-            if target and target != module:
+            if kind in kinds and target and target != module:
                 edges[module].add(target)
-    assert not _cycles(edges), f"import cycles: {_cycles(edges)}"
+    return edges
+
+
+@pytest.mark.parametrize("kinds", [{"module"}, {"module", "deferred"}],
+                         ids=["module-level", "with-deferred"])
+def test_imports_have_no_cycle(kinds):
+    cycles = _cycles(_graph(kinds))
+    assert not cycles, f"import cycles (modules importing each other, directly or around): {cycles}"

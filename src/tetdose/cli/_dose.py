@@ -69,13 +69,12 @@ def dask_context(spec: str | None) -> Any:  # noqa: ANN401 - context manager
 
 def load_plan(plan_toml: Path | None, rtplan: Path | None) -> Any:  # noqa: ANN401
     """``--plan`` and/or ``--rtplan``: the RT Plan's beams join the plan.toml's."""
-    from tetdose.dicom.rt_plan import read_rt_plan
     from tetdose.transport import Plan
 
     if plan_toml is None and rtplan is None:
         raise PlanError("give --plan plan.toml, --rtplan plan.dcm, or both")
     if plan_toml is None:
-        return read_rt_plan(rtplan)
+        return Plan.from_rt_plan(rtplan)
     return Plan.from_toml(plan_toml, rtplan=rtplan)
 
 

@@ -7,7 +7,8 @@ Setup, RT Fraction Scheme (BeamMeterset per beam), RT Beams and SOP Common. Each
 becomes a pair of control points with the same aperture and cumulative meterset weights
 w_k, w_{k+1} (step-and-shoot, C.8.8.14.1), jaws as ASYMX/ASYMY, MLC as MLCX.
 
-Read (:func:`read_rt_plan`): photon beams; nominal energy → named spectrum (≤ 1.5 MV: Co60,
+Read (:func:`read_rt_plan_beams`, or :meth:`tetdose.transport.model.Plan.from_rt_plan` for a
+whole :class:`Plan`): photon beams; nominal energy → named spectrum (≤ 1.5 MV: Co60,
 else ``"<E>MV"``, which must be one of the shipped spectra); isocentre, gantry, collimator and
 couch angles, X/ASYMX, Y/ASYMY jaws and MLCX leaves per control point, carried forward when a
 control point omits them (C.8.8.14.5). Segment i (control points i → i+1) gets the meterset
@@ -21,7 +22,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import pydicom
 from pydicom.dataset import Dataset
@@ -33,7 +34,9 @@ from tetdose.dicom._modules import StudyContext, save, set_equipment, study_cont
 from tetdose.dicom.uid import DEFAULT_PREFIX, derive_uid
 from tetdose.errors import DicomError, PlanError
 from tetdose.transport.beams import MLC, ControlPoint, LinacBeam
-from tetdose.transport.model import Plan
+
+if TYPE_CHECKING:  # the model reads RT Plans (Plan.from_rt_plan): no runtime import back
+    from tetdose.transport.model import Plan
 
 _NOMINAL_MV = {"Co60": 1.25, "6MV": 6.0, "10MV": 10.0, "15MV": 15.0, "18MV": 18.0}
 
@@ -166,8 +169,8 @@ def _control_point(b: LinacBeam, seg: ControlPoint, index: int, weight: float,
     return cp
 
 
-def read_rt_plan(path: str | os.PathLike[str]) -> Plan:
-    """The photon beams of an RT Plan as a :class:`Plan` (see module doc for what is read)."""
+def read_rt_plan_beams(path: str | os.PathLike[str]) -> tuple[LinacBeam, ...]:
+    """The photon treatment beams of an RT Plan (see module doc for what is read)."""
     try:
         ds = pydicom.dcmread(path)
     except (OSError, InvalidDicomError) as exc:
@@ -186,7 +189,7 @@ def read_rt_plan(path: str | os.PathLike[str]) -> Plan:
     beams = [b for b in beams if b is not None]
     if not beams:
         raise PlanError(f"{path}: no treatment beam with meterset to compute")
-    return Plan(treatment_beams=tuple(beams))
+    return tuple(beams)
 
 
 def _refuse(beam: Dataset) -> None:

@@ -152,6 +152,13 @@ class Plan:
         return replace(self, treatment_beams=linacs)
 
     @classmethod
+    def from_rt_plan(cls, path: str | os.PathLike[str]) -> Plan:
+        """The photon beams of a DICOM RT Plan (:mod:`tetdose.dicom.rt_plan`) as a plan."""
+        from tetdose.dicom.rt_plan import read_rt_plan_beams
+
+        return cls(treatment_beams=read_rt_plan_beams(path))
+
+    @classmethod
     def from_toml(cls, path: str | os.PathLike[str],
                   rtplan: str | os.PathLike[str] | None = None) -> Plan:
         """Read ``plan.toml`` (see module doc); spectrum paths are relative to the plan file.
@@ -186,9 +193,7 @@ class Plan:
         dicom_plans = ([base_dir / str(data["rtplan"])] if "rtplan" in data else []) + (
             [Path(rtplan)] if rtplan is not None else [])
         for dcm in dicom_plans:
-            from tetdose.dicom.rt_plan import read_rt_plan
-
-            linacs.extend(read_rt_plan(dcm).treatment_beams)
+            linacs.extend(cls.from_rt_plan(dcm).treatment_beams)
         norm = data.get("normalization", {})
         rx = data.get("prescription")
         return cls(simple, data.get("materials", {}), float(norm.get("particles", 1.0)),
