@@ -13,9 +13,9 @@ import numpy as np
 
 from tetdose.accumulate import energy_mass_transfer
 from tetdose.compare.gamma import gamma_index
-from tetdose.compare.resample import locate_points, mesh_dose_to_grid
 from tetdose.image import Image, ImageGrid
 from tetdose.phantoms import make_phantom
+from tetdose.transfer import locate_points, mesh_dose_to_grid
 from tetdose.voxelize import voxelize
 
 

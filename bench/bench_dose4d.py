@@ -24,15 +24,17 @@ import numba
 import numpy as np
 
 from tetdose.accumulate import direct_dose_mapping, energy_mass_transfer
+from tetdose.compare.comparison import half_inside
 from tetdose.compare.dvh import image_dvh, mesh_dvh
 from tetdose.compare.gamma import gamma_index
-from tetdose.compare.resample import grid_dose_to_mesh, mesh_dose_to_grid
 from tetdose.dose4d import run_dose4d
 from tetdose.mapping import map_density
+from tetdose.mapping.overlap import compute_overlap
 from tetdose.motion import BreathingModel, update_series
 from tetdose.motion.ct4d import phase_densities
 from tetdose.phantoms import make_phantom
-from tetdose.study import STRUCTURES, StudyConfig, _covered, _plan
+from tetdose.study import STRUCTURES, StudyConfig, _plan
+from tetdose.transfer import grid_dose_to_mesh, mesh_dose_to_grid
 from tetdose.transport import TransportSettings, simulate
 
 T0 = time.perf_counter()
@@ -64,7 +66,7 @@ def setup(args: argparse.Namespace, clock: Clock):  # noqa: ANN201
     density = clock("phase_densities (virtual 4D-CT)", phase_densities, series, ph.ct)
     tumour = {v: k for k, v in ph.label_names.items()}["tumour"]
     target = ph.mesh.centroids_mm[ph.mesh.region == tumour].mean(axis=0)
-    return ph, series, density, _plan(target, StudyConfig())
+    return ph, series, density, _plan(target, StudyConfig(), tumour)
 
 
 def warm_up(series, density, plan, settings: TransportSettings) -> None:  # noqa: ANN001
@@ -166,7 +168,7 @@ def comparison(ph, run, clock: Clock) -> None:  # noqa: ANN001
                 run.accumulated.dose_gy, grid)
     clock("resample grid → mesh (phase 0 voxel dose)", grid_dose_to_mesh, series.mesh(0),
           doses[0], density_g_cm3=None)
-    inside = clock("mask: voxels inside the mesh", _covered, ref, grid)
+    inside = clock("mask: voxels inside the mesh", lambda: half_inside(compute_overlap(ref, grid)))
     g = clock("gamma 3%/3mm global (inside the mesh)", gamma_index, emt, acc, mask=inside)
     print(f"    {g.n_evaluated} points, pass {g.pass_rate_percent:.1f} %")
     label_of = {name: label for label, name in ph.label_names.items()}

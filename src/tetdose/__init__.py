@@ -1,7 +1,7 @@
 """tetdose: CT density on deformable tetrahedral meshes, 4D virtual CT and photon dose."""
 # ruff: noqa: I001  (the version is imported first: submodules read it during import)
 
-from tetdose._version import __version__  # first: submodules import it
+from tetdose._version import __version__
 
 from tetdose import phantoms
 from tetdose.calibration import HUCalibration

@@ -39,10 +39,11 @@ import numpy as np
 
 from tetdose._constants import MM3_PER_CM3
 from tetdose._typing import FloatArray
-from tetdose.compare.resample import interpolate_at_points, locate_points, tet_mass_g
-from tetdose.errors import TopologyMismatchError
+from tetdose.errors import DensityError, OptionError, TopologyMismatchError
 from tetdose.image import Image, ImageGrid
+from tetdose.mass import tet_mass_g
 from tetdose.mesh import TetMesh
+from tetdose.transfer import interpolate_at_points, locate_points
 
 #: Largest relative difference of a phase's total mass from the phases' mean accepted by default
 #: (the L2 update keeps it to 1e-15, the paper's least squares to ~1e-4; densities left
@@ -70,7 +71,8 @@ def phase_weights(weights: FloatArray | None, n_phases: int) -> FloatArray:
         return np.full(n_phases, 1.0 / n_phases)
     w = np.asarray(weights, dtype=np.float64).reshape(-1)
     if len(w) != n_phases or np.any(w < 0) or w.sum() <= 0:
-        raise ValueError(f"need {n_phases} non-negative phase weights with a positive sum, got {w}")
+        raise OptionError(f"phase weights {w} are unusable: give {n_phases} non-negative "
+                          "weights with a positive sum (one per phase)")
     return w / w.sum()
 
 
@@ -84,7 +86,7 @@ def phase_mass_spread(mass_g: FloatArray) -> float:
 
 
 def check_phase_totals(mass_g: FloatArray, *, rtol: float = MASS_RTOL) -> None:
-    """Raise :class:`ValueError` naming the phase whose total mass [g] differs by > ``rtol``."""
+    """Raise :class:`DensityError` naming the phase whose total mass [g] differs by > ``rtol``."""
     m = np.asarray(mass_g, dtype=np.float64)
     if m.ndim != 2:
         raise TopologyMismatchError(f"masses must have shape (phases, tets), got {m.shape}")
@@ -92,7 +94,7 @@ def check_phase_totals(mass_g: FloatArray, *, rtol: float = MASS_RTOL) -> None:
     rel = np.abs(total - total.mean()) / total.mean()
     p = int(np.argmax(rel))
     if rel[p] > rtol:
-        raise ValueError(
+        raise DensityError(
             f"phase {p} holds {total[p]:.9g} g, the phases {total.mean():.9g} g on average "
             f"(relative {rel[p]:.3g} > {rtol:g}); the matter must be the same in every phase: "
             "update the phase densities with tetdose.motion.conserve (tetdose deform) first")
@@ -127,8 +129,6 @@ def accumulate_meshes(phases: Sequence[TetMesh], dose_gy: Sequence[FloatArray], 
     """:func:`accumulate_mesh_dose` for phase meshes carrying point_data ``density`` [g/cm³]."""
     for mesh in phases[1:]:
         phases[0].same_topology(mesh)
-    if any("density" not in mesh.point_data for mesh in phases):
-        raise ValueError("every phase mesh needs point_data 'density' (g/cm³) for its tet masses")
     mass = np.stack([tet_mass_g(mesh) for mesh in phases])
     std = None if dose_std_gy is None else np.stack(dose_std_gy)
     return accumulate_mesh_dose(np.stack(dose_gy), mass, weights=weights, dose_std_gy=std,
@@ -184,7 +184,8 @@ def direct_dose_mapping(reference: TetMesh, phase_points_mm: FloatArray,
     pts = np.asarray(phase_points_mm, dtype=np.float64)
     w = phase_weights(weights, len(phase_dose))
     if len(pts) != len(phase_dose):
-        raise ValueError(f"{len(pts)} phase point sets for {len(phase_dose)} phase doses")
+        raise OptionError(f"{len(pts)} phase point sets for {len(phase_dose)} phase doses: "
+                          "give one dose image per phase")
     centres = grid.voxel_centers_mm()
     total = np.zeros(grid.n_voxels)
     for p, dose in enumerate(phase_dose):
@@ -201,9 +202,11 @@ def energy_mass_transfer(reference: TetMesh, phase_points_mm: FloatArray,
     pts = np.asarray(phase_points_mm, dtype=np.float64)
     w = phase_weights(weights, len(phase_dose))
     if not len(pts) == len(phase_dose) == len(phase_density_g_cm3):
-        raise ValueError("need as many phase point sets, doses and density images")
+        raise OptionError(f"{len(pts)} phase point sets, {len(phase_dose)} doses and "
+                          f"{len(phase_density_g_cm3)} density images: give one of each per phase")
     if subdivisions < 1:
-        raise ValueError(f"subdivisions must be ≥ 1, got {subdivisions}")
+        raise OptionError(f"subdivisions must be an integer ≥ 1, got {subdivisions}; "
+                          "use 2 (8 sub-voxels per voxel) or more")
     energy = np.zeros(grid.n_voxels)
     mass = np.zeros(grid.n_voxels)
     for p, (dose, rho) in enumerate(zip(phase_dose, phase_density_g_cm3, strict=True)):
@@ -224,7 +227,8 @@ def energy_mass_transfer(reference: TetMesh, phase_points_mm: FloatArray,
             ids = candidates[lo:lo + EMT_CHUNK]
             sub = _sub_voxel_centres(dose.grid, ids, subdivisions)
             back = _carry(phase_mesh, reference.points_mm, sub)
-            target, ok = _voxel_of(grid, back)
+            target = grid.voxel_of(back)
+            ok = target >= 0
             src = np.repeat(ids, subdivisions**3)[ok]
             frac = w[p] / subdivisions**3
             energy += np.bincount(target[ok], weights=frac * d_vox[src] * m_vox[src],
@@ -251,11 +255,3 @@ def _sub_voxel_centres(grid: ImageGrid, ids: np.ndarray, s: int) -> FloatArray:
     sub = np.stack(np.meshgrid(t, t, t, indexing="ij"), axis=-1).reshape(-1, 3)
     return grid.index_to_physical((base[:, None, :] + sub[None, :, :]).reshape(-1, 3))
 
-
-def _voxel_of(grid: ImageGrid, points_mm: FloatArray) -> tuple[np.ndarray, np.ndarray]:
-    """Flat id of the voxel containing each point, and whether it lies inside the grid."""
-    idx = np.floor(grid.physical_to_index(points_mm) + 0.5).astype(np.int64)
-    size = np.array(grid.size)
-    ok = np.all((idx >= 0) & (idx < size), axis=1)
-    idx = np.where(ok[:, None], idx, 0)
-    return (idx[:, 2] * size[1] + idx[:, 1]) * size[0] + idx[:, 0], ok

@@ -32,7 +32,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from tqdm.auto import tqdm
 
 from tetdose._atomic import atomic_write_dir
 from tetdose.accumulate import (
@@ -51,7 +50,8 @@ from tetdose.motion.ct4d import phase_densities
 from tetdose.motion.dvf import DisplacementField
 from tetdose.motion.phases import PhaseSeries
 from tetdose.prescription import prescribe_dose4d
-from tetdose.transport import DoseResult, Plan, TransportSettings, World, simulate
+from tetdose.transport import DoseResult, Plan, TransportSettings, World
+from tetdose.transport.distributed import simulate_on
 
 
 @dataclass(frozen=True, eq=False)
@@ -107,6 +107,7 @@ class Dose4D:
                        for k, r in enumerate(self.results)],
             "accumulated_max_dose_gy": float(self.accumulated.dose_gy.max()),
             "weights": self.accumulated.weights.tolist(),
+            "units": {"dose": self.results[0].record()["units"]["dose"]},
         }
         if self.body is not None:
             out["body_accumulated_max_dose_gy"] = float(self.body.accumulated.array.max())
@@ -149,15 +150,8 @@ def run_dose4d(series: PhaseSeries, plan: Plan, settings: TransportSettings, *,
               for k, m in enumerate(meshes)]
     geoms: list[World | TetMesh | Image] = [*worlds, *(density or [])]
     streams = [replace(settings, stream=k % n) for k in range(len(geoms))]
-    if client is None:
-        results = [simulate(g, plan, st, progress=False) for g, st in
-                   zip(tqdm(geoms, desc="dose per phase (mesh, then voxels)",
-                            disable=not progress), streams, strict=True)]
-    else:
-        from tetdose.transport.distributed import simulate_distributed
-
-        results = simulate_distributed(client, geoms, plan, streams,
-                                       batches_per_task=batches_per_task, progress=progress)
+    results = simulate_on(client, geoms, plan, streams, batches_per_task=batches_per_task,
+                          progress=progress, desc="dose per phase (mesh, then voxels)")
     parts = [r.mesh_part() for r in results[:n]]
     accumulated = accumulate_meshes(meshes, [r.dose_gy for r in parts],
                                     weights=series.time_weight,
@@ -183,7 +177,7 @@ def _bodies(series: PhaseSeries, ct_hu: Image | None, phase_ct: list[Image] | No
 def _body_way(series: PhaseSeries, accumulated: AccumulatedDose,
               results: list[DoseResult]) -> BodyDose4D:
     """Voxel part accumulated per voxel, and the combined (mesh + voxel) dose on the grid."""
-    from tetdose.compare.resample import mesh_dose_to_grid, mesh_mass_on_grid
+    from tetdose.transfer import mesh_dose_to_grid, mesh_mass_on_grid
 
     grid = results[0].grid
     parts = [r.voxel_part() for r in results]

@@ -17,7 +17,7 @@ from functools import cached_property
 
 import numpy as np
 
-from tetdose._typing import FloatArray
+from tetdose._typing import FloatArray, IntArray
 from tetdose.errors import GeometryMismatchError, ImageError
 
 #: Largest |DᵀD − I| accepted for a direction matrix.
@@ -90,6 +90,25 @@ class ImageGrid:
     def physical_to_index(self, points_mm: FloatArray) -> FloatArray:
         """Patient points [mm] → continuous voxel indices (i, j, k)."""
         return self.to_grid_frame(points_mm) / self.spacing_mm
+
+    def voxel_index(self, points_mm: FloatArray) -> IntArray:
+        """(…, 3) integer index (i, j, k) of the voxel holding each point [mm] (may lie off the
+        grid): ⌊x + ½⌋ of the continuous index, the rule of :meth:`voxel_of`."""
+        return np.floor(self.physical_to_index(points_mm) + 0.5).astype(np.int64)
+
+    def voxel_of(self, points_mm: FloatArray) -> IntArray:
+        """Flat id of the voxel containing each patient point [mm], −1 off the grid.
+
+        Voxel i spans continuous indices [i − ½, i + ½), so i = ⌊x + ½⌋ per axis: a point on a
+        face between two voxels goes to the upper one (not numpy's rint, which rounds halves to
+        even and so splits face points between the two sides). The one rounding rule of tetdose,
+        the same as the overlap kernels' voxel ranges.
+        """
+        idx = self.voxel_index(points_mm).reshape(-1, 3)
+        size = np.array(self.size)
+        ok = np.all((idx >= 0) & (idx < size), axis=1)
+        flat = (idx[:, 2] * size[1] + idx[:, 1]) * size[0] + idx[:, 0]
+        return np.where(ok, flat, -1)
 
     def voxel_centers_mm(self) -> FloatArray:
         """(n_voxels, 3) centres [mm] in flat voxel-id order."""

@@ -166,8 +166,7 @@ def record(rx: Prescription, scale: float) -> dict[str, Any]:
 
 def scaled_result(result: DoseResult, scale: float, rx: Prescription) -> DoseResult:
     """``result`` with its dose scaled by ``scale`` (normalization particles × scale)."""
-    return replace(result, particles=result.particles * scale,
-                   extra={**result.extra, **record(rx, scale)})
+    return replace(result.with_extra(**record(rx, scale)), particles=result.particles * scale)
 
 
 def prescribe_result(result: DoseResult, plan: Any, geometry: Any,  # noqa: ANN401
@@ -175,7 +174,7 @@ def prescribe_result(result: DoseResult, plan: Any, geometry: Any,  # noqa: ANN4
     """One run prescribed by ``plan.prescription`` (unchanged without one)."""
     rx = plan.prescription
     if rx is None:
-        return replace(result, extra={**result.extra, "units": {"dose": PER_PHOTON_UNIT}})
+        return result.with_extra(units={"dose": PER_PHOTON_UNIT})
     mask = region_cells(geometry, labels, region_label(rx.structure, plan.regions))
     return scaled_result(result, scale_for(rx, result.dose_gy, result.mass_g, mask), rx)
 

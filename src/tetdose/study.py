@@ -25,6 +25,7 @@ import numpy as np
 
 from tetdose._atomic import atomic_write_dir
 from tetdose.calibration import HUCalibration
+from tetdose.compare.comparison import half_inside
 from tetdose.compare.dvh import image_dvh, mesh_dvh
 from tetdose.compare.gamma import gamma_index
 from tetdose.compare.profiles import image_profile, mesh_profile
@@ -38,7 +39,6 @@ from tetdose.compare.report import (
     render_png,
     write_report,
 )
-from tetdose.compare.resample import grid_dose_to_mesh, mesh_dose_to_grid
 from tetdose.dicom import write_rt_dose
 from tetdose.dose4d import run_dose4d, write_dose4d
 from tetdose.image import Image
@@ -46,12 +46,13 @@ from tetdose.io import write_mesh
 from tetdose.mapping import map_density
 from tetdose.mapping.figures import plot_evaluation
 from tetdose.mapping.metrics import evaluate
-from tetdose.mapping.overlap import Overlap, compute_overlap
+from tetdose.mapping.overlap import compute_overlap
 from tetdose.mesh import TetMesh
 from tetdose.motion import BreathingModel, update_series
 from tetdose.motion.ct4d import phase_densities, to_hu, write_4dct
 from tetdose.phantoms import Phantom, make_phantom, mesh_labels, write_phantom
 from tetdose.prescription import Prescription
+from tetdose.transfer import grid_dose_to_mesh, mesh_dose_to_grid
 from tetdose.transport import Plan, TransportSettings
 from tetdose.transport.beams import ControlPoint, LinacBeam
 from tetdose.transport.buildup import build_up_fraction, build_up_mask
@@ -221,8 +222,8 @@ class _Run:
         acc_mesh = mesh_dose_to_grid(ref_mesh, d4.accumulated.dose_gy, grid, overlap=ov_ref)
         emt, ddm = d4.voxel.energy_mass_transfer, d4.voxel.direct_mapping
         # Gamma only where the mesh is: outside the body mesh only the voxel engine scores dose.
-        inside = _covered(ov0) & _covered(ov_ref)
-        k = int(np.rint(grid.physical_to_index(self.target_mm[None])[0, 2]))
+        inside = half_inside(ov0) & half_inside(ov_ref)
+        k = int(grid.voxel_index(self.target_mm[None])[0, 2])
         pairs = {"static phase, matched resolution: voxel vs mesh": (static_vox_on_mesh,
                                                                      static_mesh),
                  "static phase: voxel vs mesh": (static_vox, static_mesh),
@@ -311,13 +312,6 @@ def organ_mesh(ph: Phantom, names: tuple[str, ...]) -> TetMesh:
     ids = [label_of[n] for n in names if n in label_of]
     edge = float(np.cbrt(6.0 * ph.mesh.volumes_mm3.mean()))  # the phantom's own mesh size
     return mesh_labels(ph.labels, ids, edge)
-
-
-def _covered(overlap: Overlap) -> np.ndarray:
-    """Voxels at least half inside the overlap's mesh (numpy shape of its grid)."""
-    grid = overlap.grid
-    cover = overlap.covered_volume_per_voxel_mm3()
-    return (cover >= 0.5 * grid.voxel_volume_mm3).reshape(grid.shape)
 
 
 def _slug(text: str) -> str:

@@ -22,6 +22,7 @@ from tetdose._typing import FloatArray
 from tetdose.errors import MeshError, OptionError
 from tetdose.image import Image, ImageGrid
 from tetdose.mapping.overlap import Overlap, compute_overlap
+from tetdose.mass import pair_mass_g
 from tetdose.mesh import TetMesh
 
 PARTIAL_MODES = ("mass", "extrapolate")
@@ -50,7 +51,7 @@ def voxelize(mesh: TetMesh, density_g_cm3: FloatArray, grid: ImageGrid, *,
     ov = overlap if overlap is not None else compute_overlap(mesh, grid, progress=progress)
     # Work on the voxels the mesh touches only: memory ∝ pairs plus the one output array.
     touched, pair_to_touched = np.unique(ov.voxel, return_inverse=True)
-    pair_mass = np.einsum("pa,pa->p", density[mesh.tets[ov.tet]], ov.bary_mm3) / MM3_PER_CM3
+    pair_mass = pair_mass_g(mesh, ov, density)
     mass_g = np.bincount(pair_to_touched, weights=pair_mass, minlength=len(touched))
     covered = np.bincount(pair_to_touched, weights=ov.volume_mm3, minlength=len(touched))
     bg = _background(background, grid)

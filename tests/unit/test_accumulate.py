@@ -14,11 +14,12 @@ from tetdose.accumulate import (
     moved_points,
     phase_mass_spread,
 )
-from tetdose.compare.resample import mesh_dose_to_grid, tet_mass_g
 from tetdose.errors import TopologyMismatchError
 from tetdose.image import Image, ImageGrid
+from tetdose.mass import tet_mass_g
 from tetdose.mesh import TetMesh
 from tetdose.phantoms import mesh_labels
+from tetdose.transfer import mesh_dose_to_grid
 from tetdose.voxelize import voxelize
 
 GRID = ImageGrid((0, 0, 0), (3.0, 3.0, 3.0), np.eye(3), (16, 14, 12))

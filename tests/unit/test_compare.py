@@ -11,16 +11,16 @@ from scipy.special import erf
 from tetdose.compare.dvh import dvh, image_dvh, mesh_dvh
 from tetdose.compare.gamma import gamma_index
 from tetdose.compare.profiles import image_profile, mesh_profile
-from tetdose.compare.resample import (
+from tetdose.image import Image, ImageGrid
+from tetdose.mass import tet_mass_g
+from tetdose.mesh import TetMesh
+from tetdose.phantoms import mesh_labels
+from tetdose.transfer import (
     grid_dose_to_mesh,
     locate_points,
     mesh_dose_to_grid,
     mesh_mass_on_grid,
-    tet_mass_g,
 )
-from tetdose.image import Image, ImageGrid
-from tetdose.mesh import TetMesh
-from tetdose.phantoms import mesh_labels
 
 
 def box_mesh(size=(12, 10, 8), box=(slice(2, 6), slice(2, 8), slice(2, 10)), spacing=4.0,

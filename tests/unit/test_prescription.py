@@ -124,3 +124,24 @@ def test_structure_cells_and_centroid_on_a_mesh_and_a_world():
     assert mask.shape == (2 + 64,) and mask[:2].all() and mask[2:].sum() == 1 and mask[2 + 3]
     with pytest.raises(PlanError, match="no cells"):
         region_cells(mesh, None, 7)
+
+
+def test_dose_result_is_immutable_and_with_extra_returns_a_new_one():
+    from dataclasses import replace
+
+    from tetdose.prescription import PER_PHOTON_UNIT
+    from tetdose.transport.result import DoseResult
+
+    r = DoseResult(np.ones((2, 3)), np.array([5, 5]), np.ones(3), np.zeros((2, 5)),
+                   np.zeros((2, 6), np.int64), 1.0, 0, "track_length", "mesh", 0.1, "0",
+                   extra={"a": 1})
+    with pytest.raises(TypeError, match="with_extra"):
+        r.extra["b"] = 2
+    with pytest.raises(TypeError, match="with_extra"):
+        r.extra.update(b=2)
+    r2 = r.with_extra(b=2, a=3)
+    assert dict(r.extra) == {"a": 1} and dict(r2.extra) == {"a": 3, "b": 2}
+    assert replace(r2, seed=1).extra == r2.extra
+    assert r.record()["units"] == {"dose": PER_PHOTON_UNIT}
+    assert r.with_extra(units={"dose": "Gy per fraction"}).record()["units"]["dose"] == \
+        "Gy per fraction"

@@ -9,7 +9,7 @@ import pydicom
 import pytest
 
 from tetdose._random import seed_for
-from tetdose.dicom.rt_plan import read_rt_plan, write_rt_plan
+from tetdose.dicom.rt_plan import write_rt_plan
 from tetdose.errors import PlanError
 from tetdose.prescription import Prescription
 from tetdose.transport import Plan, TransportSettings
@@ -40,7 +40,7 @@ def test_round_trip_gives_the_same_beams(tmp_path):
     ds = pydicom.dcmread(path)
     assert ds.Modality == "RTPLAN" and len(ds.BeamSequence) == 3
     assert ds.FractionGroupSequence[0].NumberOfFractionsPlanned == 30
-    back = read_rt_plan(path)
+    back = Plan.from_rt_plan(path)
     for a, b in zip(plan.treatment_beams, back.treatment_beams, strict=True):
         assert (a.name, a.patient_position, a.sad_mm, a.meterset) == \
             (b.name, b.patient_position, b.sad_mm, b.meterset)
@@ -72,7 +72,7 @@ def test_sampled_sources_match_the_control_points(tmp_path):
     """Exact geometry: every sampled photon starts at iso + SAD·Z_b of its beam's control points
     and crosses the isocentre plane inside their jaws ∩ MLC; beams are drawn in proportion to
     their meterset. (The step-and-shoot segments share one source position: their union.)"""
-    back = read_rt_plan(write_rt_plan(_plan(), tmp_path / "plan.dcm"))
+    back = Plan.from_rt_plan(write_rt_plan(_plan(), tmp_path / "plan.dcm"))
     src = source_arrays(back, TransportSettings(n_histories=10, n_batches=2))
     expected = []  # per beam: source position, axes, sad, union of segment apertures, MU share
     for beam in back.treatment_beams:
@@ -102,12 +102,12 @@ def test_refuses_what_it_cannot_model(tmp_path):
     ds.BeamSequence[1].RadiationType = "ELECTRON"
     ds.save_as(tmp_path / "e.dcm")
     with pytest.raises(PlanError, match="ELECTRON: only photon"):
-        read_rt_plan(tmp_path / "e.dcm")
+        Plan.from_rt_plan(tmp_path / "e.dcm")
     ds = pydicom.dcmread(path)
     ds.BeamSequence[0].NumberOfWedges = 1
     ds.save_as(tmp_path / "w.dcm")
     with pytest.raises(PlanError, match="wedges"):
-        read_rt_plan(tmp_path / "w.dcm")
+        Plan.from_rt_plan(tmp_path / "w.dcm")
 
 
 def test_rtplan_key_in_plan_toml(tmp_path):
@@ -141,7 +141,7 @@ def test_arc_is_sampled_at_its_control_points_and_attributes_carry_forward(tmp_p
     cps.append(extra)
     beam.NumberOfControlPoints, beam.BeamType = 3, "DYNAMIC"
     ds.save_as(tmp_path / "arc.dcm")
-    arc = read_rt_plan(tmp_path / "arc.dcm").treatment_beams[0]
+    arc = Plan.from_rt_plan(tmp_path / "arc.dcm").treatment_beams[0]
     assert [s.gantry_deg for s in arc.segments] == pytest.approx([10.0, 30.0])
     assert [s.meterset_fraction for s in arc.segments] == pytest.approx([0.25, 0.75])
     for s in arc.segments:

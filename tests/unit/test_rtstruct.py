@@ -258,8 +258,8 @@ def test_synthetic_rtstruct_passes_dciodvfy(tmp_path):
 
 def test_cli_compare_with_rtstruct(tmp_path, capsys):
     from tetdose.cli import main
-    from tetdose.compare.resample import mesh_dose_to_grid
     from tetdose.io import write_image, write_mesh
+    from tetdose.transfer import mesh_dose_to_grid
 
     from helpers import box_mesh
 

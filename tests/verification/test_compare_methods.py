@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 
 from tetdose.accumulate import accumulate_meshes, direct_dose_mapping, energy_mass_transfer
-from tetdose.compare.resample import mesh_dose_to_grid
 from tetdose.image import Image, ImageGrid
 from tetdose.phantoms import mesh_labels
+from tetdose.transfer import mesh_dose_to_grid
 from tetdose.voxelize import voxelize
 
 GRID = ImageGrid((0, 0, 0), (2.0, 2.0, 2.0), np.eye(3), (36, 34, 32))

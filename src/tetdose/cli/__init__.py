@@ -23,8 +23,8 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import NoReturn
 
-from tetdose import __version__
 from tetdose._atomic import output_policy
+from tetdose._version import __version__
 from tetdose.errors import TetdoseError
 
 #: subcommand → (module, one-line help). Modules are imported only when their command runs.

@@ -19,6 +19,7 @@ import numpy as np
 
 from tetdose.cli._common import add_calibration_arg, calibration_from
 from tetdose.errors import PlanError
+from tetdose.transport.model import ESTIMATORS
 
 MESH_SUFFIXES = (".vtu", ".vtk", ".xdmf", ".msh")
 
@@ -37,7 +38,7 @@ def add_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--histories", type=float, default=1e6, help="source photons (e.g. 1e7)")
     parser.add_argument("--seed", type=int, default=1, help="master random seed")
     parser.add_argument("--batches", type=int, default=10, help="independent batches (for σ)")
-    parser.add_argument("--estimator", choices=("track_length", "analog"),
+    parser.add_argument("--estimator", choices=ESTIMATORS,
                         default="track_length", help="dose tally (default: track_length)")
     parser.add_argument("--cutoff-mev", type=float, default=0.01,
                         help="photon energy cut-off, deposited locally [MeV]")
@@ -66,24 +67,14 @@ def dask_context(spec: str | None) -> Any:  # noqa: ANN401 - context manager
     return dask_client(spec)
 
 
-def _simulate(client: Any, geometry: Any, plan: Any, settings: Any, **kw: Any) -> Any:  # noqa: ANN401
-    from tetdose.transport import simulate
-    from tetdose.transport.distributed import simulate_distributed
-
-    if client is None:
-        return simulate(geometry, plan, settings, **kw)
-    return simulate_distributed(client, geometry, plan, settings, **kw)
-
-
 def load_plan(plan_toml: Path | None, rtplan: Path | None) -> Any:  # noqa: ANN401
     """``--plan`` and/or ``--rtplan``: the RT Plan's beams join the plan.toml's."""
-    from tetdose.dicom.rt_plan import read_rt_plan
     from tetdose.transport import Plan
 
     if plan_toml is None and rtplan is None:
         raise PlanError("give --plan plan.toml, --rtplan plan.dcm, or both")
     if plan_toml is None:
-        return read_rt_plan(rtplan)
+        return Plan.from_rt_plan(rtplan)
     return Plan.from_toml(plan_toml, rtplan=rtplan)
 
 
@@ -113,6 +104,7 @@ def run(args: argparse.Namespace) -> int:
     from tetdose.io import read_image, read_mesh, write_image, write_mesh
     from tetdose.prescription import prescribe_result
     from tetdose.transport import TransportSettings, World
+    from tetdose.transport.distributed import simulate_on
 
     if args.mesh is None and args.ct is None:
         raise PlanError("give --mesh (a mapped mesh), --ct (a CT), or both (the mesh inside "
@@ -143,7 +135,7 @@ def run(args: argparse.Namespace) -> int:
     world = World(mesh=mesh, density=density, labels=labels)
     plan = plan.resolved(world)
     with dask_context(args.dask) as client:
-        result = _simulate(client, world, plan, settings, progress=progress)
+        result = simulate_on(client, world, plan, settings, progress=progress)
     result = prescribe_result(result, plan, world)
     outputs: list[str] = []
     if mesh is not None:
@@ -158,11 +150,11 @@ def run(args: argparse.Namespace) -> int:
             voxels_out = _sibling(args.output, "_voxels", "nrrd")
             write_image(voxels_out, part.with_array(part.array.astype(np.float32)))
             outputs.append(str(voxels_out))
-    result.extra.update(extra, world=world.kind, outputs=outputs)
+    result = result.with_extra(**extra, world=world.kind, outputs=outputs)
     path = result.save_json(record_path(args.output))
     if not args.quiet:
         led = result.ledger
-        unit = result.extra.get("units", {}).get("dose", "Gy")
+        unit = result.record()["units"]["dose"]
         print(f"dose ({world.kind}): {result.n_histories} histories in {result.wall_s:.1f} s; "
               f"max {result.dose_gy.max():.4g} {unit}; deposited {led['deposited_mev']:.4g} MeV and "
               f"escaped {led['escaped_mev']:.4g} MeV per particle → {', '.join(outputs)}, {path}")

@@ -13,7 +13,9 @@ from tetdose.io import read_image
 from tetdose.motion.ct4d_read import find_phase, read_4dct
 from tetdose.motion.dvf import read_dvf
 from tetdose.motion.phases import PhaseSeries
+from tetdose.prescription import PER_PHOTON_UNIT
 from tetdose.transport import Plan, TransportSettings
+from tetdose.transport.model import ESTIMATORS
 
 
 def add_args(p: argparse.ArgumentParser) -> None:
@@ -23,7 +25,8 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--histories", type=float, default=1e6, help="source photons per phase")
     p.add_argument("--seed", type=int, default=1, help="master random seed")
     p.add_argument("--batches", type=int, default=10, help="independent batches (for σ)")
-    p.add_argument("--estimator", choices=("track_length", "analog"), default="track_length")
+    p.add_argument("--estimator", choices=ESTIMATORS, default="track_length",
+                   help="dose tally (default: track_length)")
     p.add_argument("--like", type=Path,
                    help="reference CT: every phase's mesh runs inside the phase's body (the "
                         "hybrid world), and the voxel-only dose on the same body is accumulated "
@@ -63,7 +66,9 @@ def run(args: argparse.Namespace) -> int:
                             phase_ct=phase_ct, dvfs=dvfs, progress=not args.quiet,
                             client=client, batches_per_task=args.batches_per_task)
     write_dose4d(result, args.output)
-    acc = result.accumulated
+    unit = result.summary()["units"]["dose"]
+    if unit == PER_PHOTON_UNIT and plan.particles != 1.0:
+        unit = f"Gy per {plan.particles:g} source photons"
     print(f"{series.n_phases} phases × {settings.n_histories} histories: accumulated dose max "
-          f"{acc.dose_gy.max():.4g} Gy per {plan.particles:g} particles → {args.output}")
+          f"{result.accumulated.dose_gy.max():.4g} {unit} → {args.output}")
     return 0

@@ -1,19 +1,13 @@
-"""Dose comparison: mesh ↔ voxel resampling, gamma index, DVHs, profiles and reports.
+"""Dose comparison: gamma index, DVHs, profiles, reports, and the mesh-vs-voxel workflow.
 
-Accumulation over breathing phases lives in :mod:`tetdose.accumulate`.
+Mesh ↔ grid transfer and point location, which comparison, accumulation and the 4D dose all
+build on, live in :mod:`tetdose.transfer`; accumulation over breathing phases in
+:mod:`tetdose.accumulate`.
 """
 
 from tetdose.compare.dvh import DVH, dvh, image_dvh, mesh_dvh
 from tetdose.compare.gamma import GammaResult, gamma_index
 from tetdose.compare.profiles import Profile, image_profile, mesh_profile
-from tetdose.compare.resample import (
-    grid_dose_to_mesh,
-    locate_points,
-    mesh_dose_to_grid,
-    mesh_mass_on_grid,
-    tet_mass_g,
-)
 
-__all__ = ["DVH", "GammaResult", "Profile", "dvh", "gamma_index", "grid_dose_to_mesh",
-           "image_dvh", "image_profile", "locate_points", "mesh_dose_to_grid", "mesh_dvh",
-           "mesh_mass_on_grid", "mesh_profile", "tet_mass_g"]
+__all__ = ["DVH", "GammaResult", "Profile", "dvh", "gamma_index", "image_dvh", "image_profile",
+           "mesh_dvh", "mesh_profile"]

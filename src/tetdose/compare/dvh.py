@@ -21,9 +21,11 @@ import numpy as np
 
 from tetdose._constants import MM3_PER_CM3
 from tetdose._typing import BoolArray, FloatArray
-from tetdose.compare.resample import tet_mass_g
+from tetdose.errors import DoseError, OptionError
 from tetdose.image import Image
+from tetdose.mass import tet_mass_g
 from tetdose.mesh import TetMesh
+from tetdose.transfer import per_tet_dose, vertex_density
 
 WEIGHTS = ("volume", "mass")
 
@@ -42,7 +44,7 @@ class DVH:
     def dose_at_percent(self, percent: float) -> float:
         """D_x [Gy]: minimum dose to the hottest ``percent`` % of the structure."""
         if not 0.0 <= percent <= 100.0:
-            raise ValueError(f"percent must be in [0, 100], got {percent}")
+            raise OptionError(f"D_x needs a percent in [0, 100], got {percent}; e.g. 95 for D95")
         if percent == 0.0:
             return float(self.dose_gy[0])
         i = np.searchsorted(self.cumulative_fraction, percent / 100.0 * (1 - 1e-12))
@@ -73,11 +75,12 @@ def dvh(dose_gy: FloatArray, weight: FloatArray, *, weight_kind: str = "volume",
     d = np.asarray(dose_gy, dtype=np.float64).ravel()
     w = np.asarray(weight, dtype=np.float64).ravel()
     if d.shape != w.shape:
-        raise ValueError(f"{len(d)} doses for {len(w)} weights")
+        raise OptionError(f"{len(d)} doses for {len(w)} weights: give one weight per dose element")
     keep = w > 0
     d, w = d[keep], w[keep]
     if len(d) == 0:
-        raise ValueError(f"structure {name!r} is empty (no element with positive weight)")
+        raise DoseError(f"structure {name!r} is empty (no element with positive weight): "
+                        "check the structure's region label or mask")
     order = np.argsort(-d, kind="stable")
     d, w = d[order], w[order]
     total = float(w.sum())
@@ -89,15 +92,13 @@ def mesh_dvh(mesh: TetMesh, dose_gy: FloatArray, *, region: int | None = None,
              ) -> DVH:
     """DVH of a per-tet dose, over the tets of ``region`` (all if None), by volume or mass."""
     if weight not in WEIGHTS:
-        raise ValueError(f"weight must be one of {WEIGHTS}, got {weight!r}")
+        raise OptionError(f"DVH weight must be one of {WEIGHTS}, got {weight!r}")
     w = (mesh.volumes_mm3 / MM3_PER_CM3 if weight == "volume"
-         else tet_mass_g(mesh, density_g_cm3))
-    dose = np.asarray(dose_gy, dtype=np.float64)
-    if dose.shape != (mesh.n_tets,):
-        raise ValueError(f"dose must have one value per tetrahedron ({mesh.n_tets})")
+         else tet_mass_g(mesh, vertex_density(mesh, density_g_cm3)))
+    dose = per_tet_dose(mesh, dose_gy)
     if region is not None:
         if mesh.region is None:
-            raise ValueError("the mesh has no region labels; pass region=None")
+            raise OptionError("the mesh has no region labels: pass region=None for the whole mesh")
         sel = mesh.region == region
         dose, w = dose[sel], w[sel]
     return dvh(dose, w, weight_kind=weight, name=name or _region_name(region))
@@ -108,7 +109,8 @@ def image_dvh(dose: Image, mask: BoolArray, *, density_g_cm3: Image | None = Non
     """DVH of a voxel dose inside ``mask``, by volume, or by mass with a density image."""
     sel = np.asarray(mask, dtype=bool)
     if sel.shape != dose.grid.shape:
-        raise ValueError(f"mask shape {sel.shape} differs from the dose grid {dose.grid.shape}")
+        raise OptionError(f"mask shape {sel.shape} differs from the dose grid {dose.grid.shape}: "
+                          "resample the mask onto the dose grid")
     v_cm3 = dose.grid.voxel_volume_mm3 / MM3_PER_CM3
     if density_g_cm3 is None:
         w, kind = np.full(int(sel.sum()), v_cm3), "volume"

@@ -13,9 +13,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from tetdose._typing import FloatArray
-from tetdose.compare.resample import interpolate_at_points, locate_points
+from tetdose.errors import OptionError
 from tetdose.image import Image
 from tetdose.mesh import TetMesh
+from tetdose.transfer import interpolate_at_points, locate_points, per_tet_dose
 
 
 @dataclass(frozen=True, eq=False)
@@ -31,7 +32,7 @@ class Profile:
 def line_points(start_mm: FloatArray, end_mm: FloatArray, n: int) -> tuple[FloatArray, FloatArray]:
     """(n, 3) equally spaced points from start to end [mm] and their distances from start."""
     if n < 2:
-        raise ValueError(f"a profile needs n ≥ 2 points, got {n}")
+        raise OptionError(f"a profile needs n ≥ 2 points, got {n}; use e.g. n=200")
     a = np.asarray(start_mm, dtype=np.float64).reshape(3)
     b = np.asarray(end_mm, dtype=np.float64).reshape(3)
     t = np.linspace(0.0, 1.0, n)
@@ -41,9 +42,7 @@ def line_points(start_mm: FloatArray, end_mm: FloatArray, n: int) -> tuple[Float
 def mesh_profile(mesh: TetMesh, dose_gy: FloatArray, start_mm: FloatArray, end_mm: FloatArray,
                  n: int = 200, *, label: str = "mesh") -> Profile:
     """Profile of a per-tet dose (piecewise constant; NaN outside the mesh)."""
-    dose = np.asarray(dose_gy, dtype=np.float64)
-    if dose.shape != (mesh.n_tets,):
-        raise ValueError(f"dose must have one value per tetrahedron ({mesh.n_tets})")
+    dose = per_tet_dose(mesh, dose_gy)
     pts, dist = line_points(start_mm, end_mm, n)
     tet, _ = locate_points(mesh, pts)
     values = np.where(tet >= 0, dose[np.maximum(tet, 0)], np.nan)

@@ -19,7 +19,7 @@ from pydicom.errors import InvalidDicomError
 from pydicom.uid import ExplicitVRLittleEndian
 from pydicom.valuerep import format_number_as_ds
 
-from tetdose import __version__
+from tetdose._version import __version__
 from tetdose.dicom.uid import DEFAULT_PREFIX, derive_uid
 from tetdose.errors import DicomError
 from tetdose.image import ImageGrid

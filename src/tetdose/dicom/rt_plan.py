@@ -7,7 +7,8 @@ Setup, RT Fraction Scheme (BeamMeterset per beam), RT Beams and SOP Common. Each
 becomes a pair of control points with the same aperture and cumulative meterset weights
 w_k, w_{k+1} (step-and-shoot, C.8.8.14.1), jaws as ASYMX/ASYMY, MLC as MLCX.
 
-Read (:func:`read_rt_plan`): photon beams; nominal energy → named spectrum (≤ 1.5 MV: Co60,
+Read (:func:`read_rt_plan_beams`, or :meth:`tetdose.transport.model.Plan.from_rt_plan` for a
+whole :class:`Plan`): photon beams; nominal energy → named spectrum (≤ 1.5 MV: Co60,
 else ``"<E>MV"``, which must be one of the shipped spectra); isocentre, gantry, collimator and
 couch angles, X/ASYMX, Y/ASYMY jaws and MLCX leaves per control point, carried forward when a
 control point omits them (C.8.8.14.5). Segment i (control points i → i+1) gets the meterset
@@ -21,7 +22,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import pydicom
 from pydicom.dataset import Dataset
@@ -33,7 +34,9 @@ from tetdose.dicom._modules import StudyContext, save, set_equipment, study_cont
 from tetdose.dicom.uid import DEFAULT_PREFIX, derive_uid
 from tetdose.errors import DicomError, PlanError
 from tetdose.transport.beams import MLC, ControlPoint, LinacBeam
-from tetdose.transport.model import Plan
+
+if TYPE_CHECKING:  # the model reads RT Plans (Plan.from_rt_plan): no runtime import back
+    from tetdose.transport.model import Plan
 
 _NOMINAL_MV = {"Co60": 1.25, "6MV": 6.0, "10MV": 10.0, "15MV": 15.0, "18MV": 18.0}
 
@@ -103,7 +106,7 @@ def _ds(x: float) -> str:
 
 
 def _beam_item(b: LinacBeam, number: int, setup: int) -> Dataset:
-    from tetdose.transport.spectra import _canonical
+    from tetdose.transport.spectra import canonical_name
 
     mlc = next((s.mlc for s in b.segments if s.mlc is not None), None)
     devices = [_item(RTBeamLimitingDeviceType="ASYMX", NumberOfLeafJawPairs=1),
@@ -127,17 +130,17 @@ def _beam_item(b: LinacBeam, number: int, setup: int) -> Dataset:
                  NumberOfControlPoints=len(cps), ReferencedPatientSetupNumber=setup)
     item.BeamLimitingDeviceSequence = devices
     item.ControlPointSequence = cps
-    item.BeamDescription = f"{_canonical(b.spectrum)} (tetdose spectrum)"
+    item.BeamDescription = f"{canonical_name(b.spectrum)} (tetdose spectrum)"
     return item
 
 
 def _control_point(b: LinacBeam, seg: ControlPoint, index: int, weight: float,
                    with_mlc: bool) -> Dataset:
-    from tetdose.transport.spectra import _canonical
+    from tetdose.transport.spectra import canonical_name
 
     cp = _item(ControlPointIndex=index, CumulativeMetersetWeight=_ds(min(weight, 1.0)))
     if index == 0:
-        cp.NominalBeamEnergy = _ds(_NOMINAL_MV[str(_canonical(b.spectrum))])
+        cp.NominalBeamEnergy = _ds(_NOMINAL_MV[str(canonical_name(b.spectrum))])
         cp.IsocenterPosition = [_ds(v) for v in b.isocenter_mm]
         cp.TableTopEccentricAngle = "0"  # DS
         cp.TableTopPitchAngle = 0.0  # FL
@@ -166,8 +169,8 @@ def _control_point(b: LinacBeam, seg: ControlPoint, index: int, weight: float,
     return cp
 
 
-def read_rt_plan(path: str | os.PathLike[str]) -> Plan:
-    """The photon beams of an RT Plan as a :class:`Plan` (see module doc for what is read)."""
+def read_rt_plan_beams(path: str | os.PathLike[str]) -> tuple[LinacBeam, ...]:
+    """The photon treatment beams of an RT Plan (see module doc for what is read)."""
     try:
         ds = pydicom.dcmread(path)
     except (OSError, InvalidDicomError) as exc:
@@ -186,7 +189,7 @@ def read_rt_plan(path: str | os.PathLike[str]) -> Plan:
     beams = [b for b in beams if b is not None]
     if not beams:
         raise PlanError(f"{path}: no treatment beam with meterset to compute")
-    return Plan(treatment_beams=tuple(beams))
+    return tuple(beams)
 
 
 def _refuse(beam: Dataset) -> None:

@@ -18,10 +18,9 @@ from tetdose.calibration import HUCalibration
 from tetdose.errors import OptionError
 from tetdose.image import Image, ImageGrid, check_ct_hu
 from tetdose.mapping.overlap import Overlap, compute_overlap, warn_if_uncovered
-from tetdose.mapping.solve import project_l2, solve_lsq
+from tetdose.mapping.solve import SOLVERS, project_l2, solve_lsq
+from tetdose.mass import tet_mass_g
 from tetdose.mesh import TetMesh
-
-SOLVERS = ("l2", "lsq")
 
 
 @dataclass(frozen=True, eq=False)
@@ -53,10 +52,6 @@ class DensityMap:
         """Relative difference of the mesh mass and the CT mass it covers (solver's own error)."""
         return abs(self.mesh_mass_g - self.ct_mass_covered_g) / self.ct_mass_covered_g
 
-
-def tet_masses_g(mesh: TetMesh, density_g_cm3: FloatArray) -> FloatArray:
-    """Eq. (3): m(T_k) = ¼ Vol(T_k) Σ ρ(vertices) [g] (volumes in mm³)."""
-    return mesh.volumes_mm3 * density_g_cm3[mesh.tets].mean(axis=1) / MM3_PER_CM3
 
 
 def map_density(mesh: TetMesh, ct_hu: Image, *, calibration: HUCalibration | None = None,
@@ -109,7 +104,7 @@ def map_density(mesh: TetMesh, ct_hu: Image, *, calibration: HUCalibration | Non
             ct_hu.grid.shape)))
         density = project_l2(mesh, rhs, bounds=bounds)
     out = mesh.with_data(point_data={"density": density},
-                         cell_data={"mass_g": tet_masses_g(mesh, density),
+                         cell_data={"mass_g": tet_mass_g(mesh, density),
                                     "ct_mass_g": ct_mass_tet})
     return DensityMap(out, _on_full_grid(ov, full_grid, crop_start), solver,
                       float(ct_mass_tet.sum()), outside)
@@ -155,10 +150,9 @@ def _vertex_bounds(mesh: TetMesh, ov: Overlap, pair_rho: FloatArray, rho_ct: Ima
     for a in range(4):
         np.minimum.at(lo, corners[:, a], pair_rho)
         np.maximum.at(hi, corners[:, a], pair_rho)
-    idx = np.rint(rho_ct.grid.physical_to_index(mesh.points_mm)).astype(np.int64)
-    inside = np.all((idx >= 0) & (idx < np.array(rho_ct.grid.size)), axis=1)
-    flat = (idx[inside, 2] * rho_ct.grid.size[1] + idx[inside, 1]) * rho_ct.grid.size[0] \
-        + idx[inside, 0]
+    voxel = rho_ct.grid.voxel_of(mesh.points_mm)
+    inside = voxel >= 0
+    flat = voxel[inside]
     lo[inside] = np.minimum(lo[inside], minimum_filter(rho_ct.array, 3, mode="nearest").ravel()[flat])
     hi[inside] = np.maximum(hi[inside], maximum_filter(rho_ct.array, 3, mode="nearest").ravel()[flat])
     unknown = ~np.isfinite(lo)  # vertices whose tetrahedra all lie outside the CT
@@ -166,4 +160,4 @@ def _vertex_bounds(mesh: TetMesh, ov: Overlap, pair_rho: FloatArray, rho_ct: Ima
     return lo, hi
 
 
-__all__ = ["DensityMap", "Overlap", "SOLVERS", "compute_overlap", "map_density", "tet_masses_g"]
+__all__ = ["DensityMap", "Overlap", "SOLVERS", "compute_overlap", "map_density"]

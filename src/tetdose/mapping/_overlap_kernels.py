@@ -41,7 +41,7 @@ import numpy as np
 from numba import njit, prange
 
 from tetdose._jit import kernel
-from tetdose.mapping._tetsplit_kernels import _DROP_REL, _index_range, _tet_volume
+from tetdose.mapping._tetsplit_kernels import DROP_REL, index_range, tet_volume
 
 #: Vertex capacity of a polyhedron (a tetrahedron clipped by six planes has at most 16).
 _CAP = 64
@@ -189,7 +189,7 @@ def _poly_range(pos, n, axis, size):
     for v in range(1, n):
         lo = min(lo, pos[v, axis])
         hi = max(hi, pos[v, axis])
-    return _index_range(lo, hi, size)
+    return index_range(lo, hi, size)
 
 
 @kernel
@@ -201,7 +201,7 @@ def _poly_exact_one(tet, nx, ny, nz, voxel_out, vol_out, cen_out, start, pos, nb
     x slab's part above the current y plane, 2 = the column's part above the current z plane;
     a cell's moments are the difference of slot 2's moments before and after its upper clip.
     """
-    drop = _DROP_REL * _tet_volume(tet)
+    drop = DROP_REL * tet_volume(tet)
     p0, p1, p2 = pos[0], pos[1], pos[2]
     e0, e1, e2 = nbr[0], nbr[1], nbr[2]
     n0 = _poly_init(tet, p0, e0)

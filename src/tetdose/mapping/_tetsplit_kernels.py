@@ -16,13 +16,13 @@ from numba import njit, prange
 from tetdose._jit import kernel
 
 #: Pieces whose volume is below this fraction of the tetrahedron's are dropped (touching contacts).
-_DROP_REL = 1e-13
+DROP_REL = 1e-13
 _MAX_X = 9
 _MAX_Y = 81
 
 
 @kernel
-def _tet_volume(t):
+def tet_volume(t):
     """|det[b − a, c − a, d − a]| / 6 of a (4, 3) array."""
     ax, ay, az = t[1, 0] - t[0, 0], t[1, 1] - t[0, 1], t[1, 2] - t[0, 2]
     bx, by, bz = t[2, 0] - t[0, 0], t[2, 1] - t[0, 1], t[2, 2] - t[0, 2]
@@ -135,7 +135,7 @@ def _slab(src, n_src, axis, lo, hi, out, tmp, cut):
 
 
 @kernel
-def _index_range(lo, hi, n):
+def index_range(lo, hi, n):
     """Voxels [first, last] along an axis that a piece spanning [lo, hi] (index space) can touch."""
     first = max(0, int(math.floor(lo + 0.5)))
     last = min(n - 1, int(math.floor(hi + 0.5)))
@@ -153,7 +153,7 @@ def _below(t, c, tmp, cut, out4):
 
 @njit(cache=True, inline="always")
 def _add_moments(t, out4):
-    v = _tet_volume(t)
+    v = tet_volume(t)
     out4[0] += v
     for d in range(3):
         out4[1 + d] += v * 0.25 * (t[0, d] + t[1, d] + t[2, d] + t[3, d])
@@ -169,7 +169,7 @@ def _column(ys, n_y, nz, z0, tmp, cut, zacc, cum, prev):
     for p in range(n_y):
         zlo = ys[p, :, 2].min()
         zhi = ys[p, :, 2].max()
-        pz0, pz1 = _index_range(zlo, zhi, nz)
+        pz0, pz1 = index_range(zlo, zhi, nz)
         if pz0 > pz1:
             continue
         if zlo < pz0 - 0.5:
@@ -191,20 +191,20 @@ def _column(ys, n_y, nz, z0, tmp, cut, zacc, cum, prev):
 def _tets_exact_one(tet, nx, ny, nz, voxel_out, vol_out, cen_out, start, xs, ys, tmp, zacc, cut,
                cum, prev):
     """Pairs of one tetrahedron (index-space (4, 3) array); returns the number written."""
-    vol_tet = _tet_volume(tet)
-    drop = _DROP_REL * vol_tet
-    x0, x1 = _index_range(tet[:, 0].min(), tet[:, 0].max(), nx)
+    vol_tet = tet_volume(tet)
+    drop = DROP_REL * vol_tet
+    x0, x1 = index_range(tet[:, 0].min(), tet[:, 0].max(), nx)
     written = 0
     for ix in range(x0, x1 + 1):
         n_x = _slab(tet.reshape(1, 4, 3), 1, 0, ix - 0.5, ix + 0.5, xs, tmp, cut)
         if n_x == 0:
             continue
-        y0, y1 = _index_range(xs[:n_x, :, 1].min(), xs[:n_x, :, 1].max(), ny)
+        y0, y1 = index_range(xs[:n_x, :, 1].min(), xs[:n_x, :, 1].max(), ny)
         for iy in range(y0, y1 + 1):
             n_y = _slab(xs, n_x, 1, iy - 0.5, iy + 0.5, ys, tmp, cut)
             if n_y == 0:
                 continue
-            z0, z1 = _index_range(ys[:n_y, :, 2].min(), ys[:n_y, :, 2].max(), nz)
+            z0, z1 = index_range(ys[:n_y, :, 2].min(), ys[:n_y, :, 2].max(), nz)
             zacc[: z1 - z0 + 1] = 0.0
             _column(ys, n_y, nz, z0, tmp, cut, zacc, cum, prev)
             for r in range(z1 - z0 + 1):

@@ -27,8 +27,8 @@ from tetdose._typing import BoolArray
 from tetdose.calibration import HUCalibration
 from tetdose.errors import GeometryMismatchError, ImageError
 from tetdose.image import Image, check_ct_hu
-from tetdose.mapping import tet_masses_g
 from tetdose.mapping.overlap import Overlap, compute_overlap
+from tetdose.mass import tet_mass_g
 from tetdose.mesh import TetMesh
 from tetdose.voxelize import voxelize
 
@@ -93,7 +93,7 @@ def evaluate(ct_hu: Image, mesh: TetMesh, density_g_cm3: np.ndarray, *,
     rel = 100.0 * err / rho
     v_cm3 = grid.voxel_volume_mm3 / MM3_PER_CM3
     image_mass = float(rho.sum() * v_cm3)
-    mesh_mass = float(tet_masses_g(mesh, np.asarray(density_g_cm3)).sum())
+    mesh_mass = float(tet_mass_g(mesh, density_g_cm3).sum())
     in_mesh = float(np.dot(ov.volume_mm3, original.array.ravel()[ov.voxel]) / MM3_PER_CM3)
     metrics = MappingMetrics(
         n_voxels=int(mask.sum()),

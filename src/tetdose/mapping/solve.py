@@ -30,6 +30,10 @@ from tetdose.errors import SolverError
 from tetdose.mesh import TetMesh
 
 #: Relative residual of the conjugate-gradient solve of M·ρ = b.
+#: Names of the vertex-density solvers, as the CLI spells them (``--solver``, ``--method``):
+#: "l2" the mass-conserving L2 projection (:func:`project_l2`), "lsq" the paper's least squares
+#: of eq. (9) (:func:`solve_lsq`). The one list: mapping and the motion density update use it.
+SOLVERS = ("l2", "lsq")
 CG_RTOL = 1e-14
 #: LSMR stopping tolerances (atol, btol) for the paper's least squares.
 LSMR_TOL = 1e-14

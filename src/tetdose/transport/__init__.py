@@ -25,7 +25,8 @@ from tetdose.image import Image
 from tetdose.mesh import TetMesh
 from tetdose.transport.geometry import mesh_geometry, morton_order
 from tetdose.transport.job import build_job, execute
-from tetdose.transport.model import PhotonSource, Plan, TransportSettings
+from tetdose.transport.model import Plan, TransportSettings
+from tetdose.transport.photon_source import PhotonSource
 from tetdose.transport.result import DoseResult
 from tetdose.transport.world import World, as_world
 

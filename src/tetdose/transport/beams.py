@@ -34,6 +34,7 @@ import numpy as np
 
 from tetdose._typing import FloatArray
 from tetdose.errors import PlanError
+from tetdose.transport.photon_source import PhotonSource
 
 PATIENT_POSITIONS = ("HFS", "HFP", "FFS", "FFP")
 #: Rows: DICOM patient axes (x, y, z) expressed in the patient support system s.
@@ -169,8 +170,6 @@ class LinacBeam:
 
     def sources(self) -> list:  # list[PhotonSource]
         """One point source per segment with an open aperture, weighted by its meterset."""
-        from tetdose.transport.model import PhotonSource
-
         total = sum(s.meterset_fraction for s in self.segments)
         out = []
         for seg in self.segments:

@@ -156,3 +156,31 @@ def simulate_distributed(client: Any,  # noqa: ANN401
                                 {"task_s": sum(s for _, s, _ in out),
                                  "task_cpu_s": sum(c for _, _, c in out)}))
     return results[0] if single else results
+
+
+def simulate_on(client: Any,  # noqa: ANN401
+                geometries: World | TetMesh | Image | Sequence[World | TetMesh | Image],
+                plan: Plan, settings: TransportSettings | Sequence[TransportSettings], *,
+                labels: Image | None = None, batches_per_task: int = 1,
+                progress: bool | None = None, desc: str = "dose per geometry"
+                ) -> DoseResult | list[DoseResult]:
+    """The one local-or-dask switch: :func:`simulate_distributed` on ``client``, or, with
+    ``client=None``, :func:`tetdose.transport.simulate` on each geometry in turn here (a
+    ``desc`` progress bar over a list). Arguments and return as :func:`simulate_distributed`;
+    the doses are bitwise the same either way (module docstring)."""
+    if client is not None:
+        return simulate_distributed(client, geometries, plan, settings, labels=labels,
+                                    batches_per_task=batches_per_task, progress=progress)
+    from tetdose.transport import simulate
+
+    if isinstance(geometries, World | TetMesh | Image):
+        if not isinstance(settings, TransportSettings):
+            raise PlanError("give one TransportSettings for one geometry")
+        return simulate(geometries, plan, settings, labels=labels, progress=progress)
+    geoms = list(geometries)
+    each = [settings] * len(geoms) if isinstance(settings, TransportSettings) else list(settings)
+    if len(each) != len(geoms):
+        raise PlanError(f"{len(each)} settings for {len(geoms)} geometries; give one, or one "
+                        "per geometry")
+    return [simulate(g, plan, st, labels=labels, progress=False) for g, st in
+            zip(tqdm(geoms, desc=desc, disable=not progress), each, strict=True)]

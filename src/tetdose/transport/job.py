@@ -17,6 +17,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from tetdose._typing import FloatArray, IntArray
+from tetdose._version import __version__
 from tetdose.image import ImageGrid
 from tetdose.transport._geometry_world import WorldGeometry
 from tetdose.transport._history import N_COUNTS, N_LEDGER
@@ -133,8 +134,6 @@ def assemble(job: TransportJob, on_grid: MeshOnGrid | None, plan: Plan,
              settings: TransportSettings, rows: list[Rows], wall_s: float,
              extra: dict[str, object] | None = None) -> DoseResult:
     """DoseResult from batch rows in batch order (tets moved back to mesh order)."""
-    from tetdose import __version__
-
     energy = np.concatenate([r[0] for r in rows])
     if job.order is not None:
         energy[:, job.order] = energy[:, :job.n_tets].copy()

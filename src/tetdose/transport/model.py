@@ -50,7 +50,7 @@ import csv
 import math
 import os
 import tomllib
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -60,12 +60,13 @@ import numpy as np
 from tetdose._typing import FloatArray
 from tetdose.errors import PlanError
 from tetdose.transport.beams import LinacBeam
+from tetdose.transport.photon_source import PhotonSource
 from tetdose.transport.spectra import is_named, named_spectrum
 
 if TYPE_CHECKING:
     from tetdose.prescription import Prescription
 
-SOURCE_KINDS = ("pencil", "parallel", "point", "linac")
+#: The one spelling of each dose estimator (`--estimator`); source kinds: SOURCE_KINDS.
 ESTIMATORS = ("analog", "track_length")
 #: Largest tally (n_batches × n_cells × 8 bytes) accepted by default.
 MAX_TALLY_BYTES = 2 * 1024**3
@@ -73,89 +74,6 @@ _SECTIONS = {"beam", "materials", "normalization", "regions", "prescription", "p
              "rtplan"}
 _BEAM_KEYS = {"type", "energy_mev", "spectrum", "position_mm", "direction", "field_mm",
               "half_angle_deg", "weight", "field_x_direction"}
-
-
-def _unit(vec: Sequence[float], what: str) -> FloatArray:
-    arr = np.asarray(vec, dtype=np.float64).reshape(-1)
-    if arr.shape != (3,) or not np.all(np.isfinite(arr)):
-        raise PlanError(f"{what} must be three finite numbers, got {vec!r}")
-    norm = float(np.linalg.norm(arr))
-    if norm == 0.0:
-        raise PlanError(f"{what} must not be the zero vector")
-    return arr / norm
-
-
-@dataclass(frozen=True, eq=False)
-class PhotonSource:
-    """One beam: where photons start [mm], where they go, their energies [MeV] and weight.
-
-    ``energies_mev``/``line_weights`` are discrete spectrum lines (one line: mono-energetic).
-    """
-
-    kind: str
-    position_mm: Sequence[float]
-    direction: Sequence[float] = (0.0, 0.0, 1.0)
-    energies_mev: Sequence[float] = (1.0,)
-    line_weights: Sequence[float] = (1.0,)
-    field_mm: Sequence[float] = (0.0, 0.0)
-    half_angle_deg: float = 180.0
-    weight: float = 1.0
-    field_x_direction: Sequence[float] | None = None
-    sad_mm: float = 0.0
-    aperture_mm: FloatArray | None = None
-    e1: FloatArray = field(init=False, repr=False)
-    e2: FloatArray = field(init=False, repr=False)
-
-    def __post_init__(self) -> None:
-        if self.kind not in SOURCE_KINDS:
-            raise PlanError(f"beam type {self.kind!r} is unknown; use one of {SOURCE_KINDS}")
-        pos = np.asarray(self.position_mm, dtype=np.float64).reshape(-1)
-        if pos.shape != (3,) or not np.all(np.isfinite(pos)):
-            raise PlanError(f"beam position_mm must be three finite numbers, got {pos}")
-        axis = _unit(self.direction, "beam direction")
-        e = np.asarray(self.energies_mev, dtype=np.float64).reshape(-1)
-        wl = np.asarray(self.line_weights, dtype=np.float64).reshape(-1)
-        if len(e) == 0 or len(e) != len(wl):
-            raise PlanError("a beam needs at least one energy and one weight per energy")
-        if not np.all(np.isfinite(e)) or np.any(e <= 0.0):
-            raise PlanError(f"beam energies must be positive MeV, got {e.tolist()}")
-        if not np.all(np.isfinite(wl)) or np.any(wl < 0.0) or wl.sum() <= 0.0:
-            raise PlanError("spectrum weights must be non-negative with a positive sum")
-        fld = np.asarray(self.field_mm, dtype=np.float64).reshape(-1)
-        if fld.shape != (2,) or np.any(fld < 0.0) or not np.all(np.isfinite(fld)):
-            raise PlanError(f"field_mm must be two non-negative sizes, got {self.field_mm}")
-        if self.kind == "parallel" and np.any(fld <= 0.0):
-            raise PlanError("a parallel beam needs a positive field_mm = [x, y]")
-        if not 0.0 < float(self.half_angle_deg) <= 180.0:
-            raise PlanError(f"half_angle_deg must lie in (0, 180], got {self.half_angle_deg}")
-        if not (math.isfinite(self.weight) and self.weight > 0.0):
-            raise PlanError(f"beam weight must be positive, got {self.weight}")
-        ref = (np.eye(3)[int(np.argmin(np.abs(axis)))] if self.field_x_direction is None
-               else _unit(self.field_x_direction, "field_x_direction"))
-        e1 = ref - np.dot(ref, axis) * axis
-        if np.linalg.norm(e1) < 1e-9:
-            raise PlanError("field_x_direction must not be parallel to the beam direction")
-        for name, val in (("position_mm", pos), ("direction", axis), ("energies_mev", e),
-                          ("line_weights", wl), ("field_mm", fld)):
-            object.__setattr__(self, name, val)
-        object.__setattr__(self, "e1", e1 / np.linalg.norm(e1))
-        if self.kind == "linac":
-            # IEC 61217 beam limiting device frame: X_b = e1, Y_b = e2, beam along −Z_b.
-            object.__setattr__(self, "e2", np.cross(self.e1, axis))
-            rects = np.asarray(self.aperture_mm if self.aperture_mm is not None else
-                               np.zeros((0, 4)), dtype=np.float64).reshape(-1, 4)
-            if (len(rects) == 0 or np.any(rects[:, 1] <= rects[:, 0])
-                    or np.any(rects[:, 3] <= rects[:, 2]) or not self.sad_mm > 0.0):
-                raise PlanError("a linac source needs sad_mm > 0 and open aperture rectangles "
-                                "[x1, x2, y1, y2]")
-            object.__setattr__(self, "aperture_mm", rects)
-        else:
-            object.__setattr__(self, "e2", np.cross(axis, self.e1))
-
-    @property
-    def mean_energy_mev(self) -> float:
-        w = np.asarray(self.line_weights)
-        return float(np.dot(w, self.energies_mev) / w.sum())
 
 
 @dataclass(frozen=True, eq=False)
@@ -234,6 +152,13 @@ class Plan:
         return replace(self, treatment_beams=linacs)
 
     @classmethod
+    def from_rt_plan(cls, path: str | os.PathLike[str]) -> Plan:
+        """The photon beams of a DICOM RT Plan (:mod:`tetdose.dicom.rt_plan`) as a plan."""
+        from tetdose.dicom.rt_plan import read_rt_plan_beams
+
+        return cls(treatment_beams=read_rt_plan_beams(path))
+
+    @classmethod
     def from_toml(cls, path: str | os.PathLike[str],
                   rtplan: str | os.PathLike[str] | None = None) -> Plan:
         """Read ``plan.toml`` (see module doc); spectrum paths are relative to the plan file.
@@ -268,9 +193,7 @@ class Plan:
         dicom_plans = ([base_dir / str(data["rtplan"])] if "rtplan" in data else []) + (
             [Path(rtplan)] if rtplan is not None else [])
         for dcm in dicom_plans:
-            from tetdose.dicom.rt_plan import read_rt_plan
-
-            linacs.extend(read_rt_plan(dcm).treatment_beams)
+            linacs.extend(cls.from_rt_plan(dcm).treatment_beams)
         norm = data.get("normalization", {})
         rx = data.get("prescription")
         return cls(simple, data.get("materials", {}), float(norm.get("particles", 1.0)),

@@ -34,6 +34,7 @@ from tetdose._typing import FloatArray, IntArray
 from tetdose.errors import GeometryMismatchError
 from tetdose.image import Image, ImageGrid
 from tetdose.mesh import TetMesh
+from tetdose.prescription import PER_PHOTON_UNIT
 
 if TYPE_CHECKING:
     from tetdose.transport.world import MeshOnGrid
@@ -41,6 +42,20 @@ if TYPE_CHECKING:
 LEDGER_KEYS = ("source_mev", "deposited_mev", "escaped_mev", "cutoff_mev", "lost_mev")
 COUNT_KEYS = ("lost_photons", "relocations", "stack_overflows", "tet_crossings", "voxel_steps",
               "mesh_voxel_switches")
+
+
+class FrozenExtra(dict):
+    """The ``extra`` record entries of a :class:`DoseResult`: a dict that refuses changes
+    (``result.with_extra(key=value)`` returns a new result instead)."""
+
+    def _refuse(self, *args: Any, **kwargs: Any) -> None:  # noqa: ANN401
+        raise TypeError("a DoseResult is immutable: use result.with_extra(key=value)")
+
+    __setitem__ = __delitem__ = update = pop = popitem = setdefault = clear = _refuse
+    __ior__ = _refuse
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        return FrozenExtra, (dict(self),)
 
 
 @dataclass(frozen=True, eq=False)
@@ -70,6 +85,13 @@ class DoseResult:
     extra: dict[str, Any] = field(default_factory=dict)
     n_tets: int = 0
     on_grid: MeshOnGrid | None = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "extra", FrozenExtra(self.extra))
+
+    def with_extra(self, **entries: Any) -> DoseResult:  # noqa: ANN401
+        """A new result whose record carries ``entries`` besides (or instead of) ``extra``'s."""
+        return replace(self, extra={**self.extra, **entries})
 
     @property
     def n_histories(self) -> int:
@@ -135,7 +157,8 @@ class DoseResult:
             **{k: int(v) for k, v in zip(COUNT_KEYS, self.counts_per_batch.sum(axis=0),
                                          strict=True)},
             "n_tets": self.n_tets, "n_voxels": len(self.mass_g) - self.n_tets,
-            "wall_s": self.wall_s, "version": self.version, "units": {"dose": "Gy"},
+            "wall_s": self.wall_s, "version": self.version,
+            "units": {"dose": PER_PHOTON_UNIT},
             "max_dose_gy": float(self.dose_gy.max()), **self.extra,
         }
 

@@ -9,11 +9,13 @@ import numpy as np
 from tetdose._typing import FloatArray
 from tetdose.errors import PlanError
 from tetdose.transport._source import LINAC, PARALLEL, PENCIL, POINT, SourceArrays
-from tetdose.transport.model import PhotonSource, Plan, TransportSettings
+from tetdose.transport.model import Plan, TransportSettings
+from tetdose.transport.photon_source import SOURCE_KINDS, PhotonSource
 
 #: Highest photon energy the interaction tables cover [MeV].
 E_MAX_MEV = 20.0
-_KINDS = {"pencil": PENCIL, "parallel": PARALLEL, "point": POINT, "linac": LINAC}
+#: Kernel code of each source kind, keyed by the one spelling of :data:`SOURCE_KINDS`.
+_KINDS = dict(zip(SOURCE_KINDS, (PENCIL, PARALLEL, POINT, LINAC), strict=True))
 
 
 def source_arrays(plan: Plan, settings: TransportSettings,

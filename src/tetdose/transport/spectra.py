@@ -45,10 +45,10 @@ NAMED_SPECTRA = ("6MV", "10MV", "15MV", "18MV", "Co60")
 
 def is_named(name: str) -> bool:
     """True for a beam-quality name (``"6MV"``, ``"Co60"``, …; case and ``-``/space ignored)."""
-    return _canonical(name) is not None
+    return canonical_name(name) is not None
 
 
-def _canonical(name: str) -> str | None:
+def canonical_name(name: str) -> str | None:
     key = str(name).replace(" ", "").replace("-", "").upper()
     for n in NAMED_SPECTRA:
         if n.upper() == key:
@@ -58,7 +58,7 @@ def _canonical(name: str) -> str | None:
 
 def named_spectrum(name: str) -> tuple[FloatArray, FloatArray]:
     """(energies [MeV], relative weights) of a named beam quality (see module doc)."""
-    canon = _canonical(name)
+    canon = canonical_name(name)
     if canon is None:
         raise PlanError(f"spectrum {name!r} is neither a named beam quality {NAMED_SPECTRA} nor "
                         "a .csv file")
@@ -72,7 +72,7 @@ def named_spectrum(name: str) -> tuple[FloatArray, FloatArray]:
 
 def build_up_depth_mm(name: str) -> float:
     """Typical d_max in water [mm] of a named beam quality (see :data:`DMAX_MM`)."""
-    canon = _canonical(name)
+    canon = canonical_name(name)
     if canon is None:
         raise PlanError(f"{name!r} is not a named beam quality {NAMED_SPECTRA}")
     return DMAX_MM[canon]

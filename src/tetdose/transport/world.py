@@ -24,10 +24,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tetdose._constants import MM3_PER_CM3
 from tetdose._typing import FloatArray, IntArray
 from tetdose.errors import ImageError, MeshError, PlanError
 from tetdose.image import Image, ImageGrid
+from tetdose.mass import mass_g, pair_mass_g
 from tetdose.mesh import TetMesh
 from tetdose.transport._geometry_voxel import VoxelGeometry
 from tetdose.transport._geometry_world import LIST_PAD_MM, WorldGeometry, list_triangles_per_voxel
@@ -162,7 +162,7 @@ def _on_grid(mesh: TetMesh, grid: ImageGrid, rho: FloatArray) -> tuple[MeshOnGri
     from tetdose.mapping.overlap import compute_overlap
 
     ov = compute_overlap(mesh, grid)
-    m_kj = np.einsum("pa,pa->p", rho[mesh.tets[ov.tet]], ov.bary_mm3) / MM3_PER_CM3
+    m_kj = pair_mass_g(mesh, ov, rho)
     return (MeshOnGrid(ov.tet.astype(np.intp), ov.voxel.astype(np.intp), m_kj),
             ov.covered_volume_per_voxel_mm3())
 
@@ -197,8 +197,8 @@ def world_arrays(world: World, material_of: MaterialRule) -> WorldArrays:
             lists = list_triangles_per_voxel(tet.bnd_tri, vox.lo, vox.cell, vox.n, LIST_PAD_MM)
         uncovered = grid.voxel_volume_mm3 - covered
         uncovered[uncovered < COVERED_TOL_REL * grid.voxel_volume_mm3] = 0.0  # round-off
-        vox_mass = rho_v * uncovered / MM3_PER_CM3
-    tet_mass = (tet_rho * mesh.volumes_mm3 / MM3_PER_CM3) if mesh is not None else np.zeros(0)
+        vox_mass = mass_g(uncovered, rho_v)
+    tet_mass = mass_g(mesh.volumes_mm3, tet_rho) if mesh is not None else np.zeros(0)
     if on_grid is not None:
         _warn_if_outside(mesh, on_grid, tet_mass)
     return WorldArrays(WorldGeometry(tet, vox, *lists), names, material,

@@ -1,4 +1,8 @@
-"""Dose between a tetrahedral mesh and a voxel grid, conserving deposited energy; point location.
+"""Mesh ↔ voxel-grid transfer of dose, conserving deposited energy; point location in a mesh.
+
+The neutral foundation of comparison (:mod:`tetdose.compare`), accumulation
+(:mod:`tetdose.accumulate`) and the 4D dose (:mod:`tetdose.dose4d`): it imports only the mesh,
+the image, the overlap and the masses, never those modules.
 
 Both directions go through the exact tet ∩ voxel overlap (:mod:`tetdose.mapping.overlap`). With
 the vertex density ρ linear in each tetrahedron, the mass of tet k inside voxel j is
@@ -24,12 +28,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from tetdose._constants import MM3_PER_CM3
+from tetdose import _locate_kernels
 from tetdose._typing import FloatArray, IntArray
-from tetdose.compare import _locate_kernels
-from tetdose.errors import GeometryMismatchError
+from tetdose.errors import DensityError, DoseError, GeometryMismatchError, ImageError
 from tetdose.image import Image, ImageGrid
 from tetdose.mapping.overlap import Overlap, compute_overlap
+from tetdose.mass import pair_mass_g
 from tetdose.mesh import TetMesh
 
 #: A point counts as inside a tetrahedron when its smallest barycentric coordinate is ≥ −this.
@@ -42,22 +46,15 @@ def vertex_density(mesh: TetMesh, density_g_cm3: FloatArray | None) -> FloatArra
         density_g_cm3 = mesh.point_data.get("density", np.ones(mesh.n_points))
     rho = np.asarray(density_g_cm3, dtype=np.float64)
     if rho.shape != (mesh.n_points,):
-        raise ValueError(f"density must have one value per point ({mesh.n_points}), "
-                         f"got shape {rho.shape}")
+        raise DensityError(f"density must have one value per mesh point ({mesh.n_points}), got "
+                           f"shape {rho.shape}: pass the density of this mesh's points")
     return rho
 
 
-def tet_mass_g(mesh: TetMesh, density_g_cm3: FloatArray | None = None) -> FloatArray:
-    """Mass of each tetrahedron [g]: m_k = Vol(T_k) [cm³] · mean of its vertex densities."""
-    rho = vertex_density(mesh, density_g_cm3)
-    return mesh.volumes_mm3 * rho[mesh.tets].mean(axis=1) / MM3_PER_CM3
-
-
-def pair_mass_g(mesh: TetMesh, overlap: Overlap, density_g_cm3: FloatArray | None = None
-                ) -> FloatArray:
-    """(P,) mass m_kj [g] of each overlap pair (tet k, voxel j), exact for linear density."""
-    rho = vertex_density(mesh, density_g_cm3)
-    return np.einsum("pa,pa->p", rho[mesh.tets[overlap.tet]], overlap.bary_mm3) / MM3_PER_CM3
+def weighted_pair_mass_g(mesh: TetMesh, overlap: Overlap,
+                         density_g_cm3: FloatArray | None = None) -> FloatArray:
+    """(P,) mass m_kj [g] of each overlap pair (tet k, voxel j) with :func:`vertex_density`."""
+    return pair_mass_g(mesh, overlap, vertex_density(mesh, density_g_cm3))
 
 
 def _overlap_for(mesh: TetMesh, grid: ImageGrid, overlap: Overlap | None) -> Overlap:
@@ -77,9 +74,9 @@ def mesh_dose_to_grid(mesh: TetMesh, dose_gy: FloatArray, grid: ImageGrid, *,
                       density_g_cm3: FloatArray | None = None, overlap: Overlap | None = None
                       ) -> Image:
     """Voxel dose [Gy] D_j = Σ_k D_k m_kj / Σ_k m_kj of a per-tet dose (module docstring)."""
-    dose = _per_tet(mesh, dose_gy)
+    dose = per_tet_dose(mesh, dose_gy)
     ov = _overlap_for(mesh, grid, overlap)
-    m_kj = pair_mass_g(mesh, ov, density_g_cm3)
+    m_kj = weighted_pair_mass_g(mesh, ov, density_g_cm3)
     energy = np.bincount(ov.voxel, weights=dose[ov.tet] * m_kj, minlength=grid.n_voxels)
     mass = np.bincount(ov.voxel, weights=m_kj, minlength=grid.n_voxels)
     return Image(_ratio(energy, mass).reshape(grid.shape), grid)
@@ -89,7 +86,7 @@ def mesh_mass_on_grid(mesh: TetMesh, grid: ImageGrid, *, density_g_cm3: FloatArr
                       overlap: Overlap | None = None) -> Image:
     """Mesh mass in each voxel [g], m_j = Σ_k m_kj (the voxel mass of the maps)."""
     ov = _overlap_for(mesh, grid, overlap)
-    mass = np.bincount(ov.voxel, weights=pair_mass_g(mesh, ov, density_g_cm3),
+    mass = np.bincount(ov.voxel, weights=weighted_pair_mass_g(mesh, ov, density_g_cm3),
                        minlength=grid.n_voxels)
     return Image(mass.reshape(grid.shape), grid)
 
@@ -103,18 +100,19 @@ def grid_dose_to_mesh(mesh: TetMesh, dose: Image, *, density_g_cm3: FloatArray |
     """
     grid = dose.grid
     ov = _overlap_for(mesh, grid, overlap)
-    m_kj = pair_mass_g(mesh, ov, density_g_cm3)
+    m_kj = weighted_pair_mass_g(mesh, ov, density_g_cm3)
     d_j = np.asarray(dose.array, dtype=np.float64).ravel()
     energy_k = np.bincount(ov.tet, weights=d_j[ov.voxel] * m_kj, minlength=mesh.n_tets)
     mass_k = np.bincount(ov.tet, weights=m_kj, minlength=mesh.n_tets)
     return _ratio(energy_k, mass_k)
 
 
-def _per_tet(mesh: TetMesh, dose_gy: FloatArray) -> FloatArray:
+def per_tet_dose(mesh: TetMesh, dose_gy: FloatArray) -> FloatArray:
+    """``dose_gy`` as a float64 (M,) array, one value [Gy] per tetrahedron of ``mesh``."""
     dose = np.asarray(dose_gy, dtype=np.float64)
     if dose.shape != (mesh.n_tets,):
-        raise ValueError(f"dose must have one value per tetrahedron ({mesh.n_tets}), "
-                         f"got shape {dose.shape}")
+        raise DoseError(f"the dose has shape {dose.shape}, the mesh {mesh.n_tets} tetrahedra: "
+                        "use the dose computed on this mesh")
     return dose
 
 
@@ -183,3 +181,20 @@ def interpolate_at_points(image: Image, points_mm: FloatArray, *, outside: float
     vals = map_coordinates(np.asarray(image.array, dtype=np.float64), coords, order=1,
                            mode="nearest")
     return np.where(inside, vals, outside)
+
+
+def dose_on_grid(dose: tuple[TetMesh, FloatArray] | Image, grid: ImageGrid, *,
+                 what: str = "the dose image") -> Image:
+    """A dose on ``grid`` [its unit], negative values clipped to 0: a (mesh, per-tet dose) pair
+    through :func:`mesh_dose_to_grid` (energy-conserving), or a dose image trilinearly
+    (:func:`interpolate_at_points`, 0 outside it) unless it is on ``grid`` already."""
+    if isinstance(dose, Image):
+        if dose.array.ndim != 3:
+            raise ImageError(f"{what} is not a 3-D dose image; give a 3-D dose (.nrrd, .mha …)")
+        img = dose if dose.grid.same_as(grid) else Image(
+            interpolate_at_points(dose, grid.voxel_centers_mm(), outside=0.0).reshape(grid.shape),
+            grid)
+    else:
+        mesh, dose_gy = dose
+        img = mesh_dose_to_grid(mesh, dose_gy, grid)
+    return Image(np.clip(np.asarray(img.array, dtype=np.float64), 0.0, None), grid)

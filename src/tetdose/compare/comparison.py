@@ -1,0 +1,200 @@
+"""A mesh dose compared with a voxel dose: the workflow of ``tetdose compare`` and the demo study.
+
+The mesh dose is put on the voxel dose's grid (:func:`tetdose.transfer.mesh_dose_to_grid`:
+energy-conserving, mass-weighted with the mesh's point_data ``density`` when present). The mesh
+dose exists only inside the mesh (an organ mesh in a hybrid run covers a few organs), so gamma
+is evaluated where both doses are defined — the voxels at least half inside the mesh
+(:func:`half_inside`) — with the reference maximum taken there too. Then: gamma maps for each
+criterion of :data:`CRITERIA` (on a seeded sample of at most ``gamma_max_points`` points, and on
+the axial slice through the reference maximum for the figure), DVHs per structure (a tet belongs
+to a structure when the voxel holding its centroid does, :meth:`ImageGrid.voxel_of`), profiles
+through the maximum along x, y and z, and the mean absolute difference above the threshold.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from tetdose._constants import MM3_PER_CM3
+from tetdose._typing import BoolArray, FloatArray, IntArray
+from tetdose.compare import report
+from tetdose.compare.dvh import dvh, image_dvh
+from tetdose.compare.gamma import gamma_index
+from tetdose.compare.profiles import image_profile, mesh_profile
+from tetdose.errors import GeometryMismatchError, MeshError, OptionError
+from tetdose.image import Image, ImageGrid
+from tetdose.mapping.overlap import Overlap, compute_overlap
+from tetdose.mesh import TetMesh
+from tetdose.prescription import PER_PHOTON_UNIT
+from tetdose.transfer import mesh_dose_to_grid, per_tet_dose
+
+#: Gamma criteria of the comparison: (dose %, DTA mm, local).
+CRITERIA = ((3.0, 3.0, False), (2.0, 2.0, False), (3.0, 3.0, True))
+#: A voxel is compared when at least this fraction of its volume lies inside the mesh.
+REGION_FRACTION = 0.5
+
+
+@dataclass(frozen=True, eq=False)
+class Comparison:
+    """The report of one comparison: figures, the summary table, the mesh dose on the voxel
+    grid [unit of the doses] and the compared region (voxels ≥ half inside the mesh)."""
+
+    figures: list[report.Figure]
+    summary: dict[str, Any]
+    mesh_on_grid: Image
+    region: BoolArray
+
+    def write(self, out_dir: str | Path) -> Path:
+        """The HTML + JSON report folder (:func:`tetdose.compare.report.write_report`)."""
+        return report.write_report(out_dir, self.figures, self.summary)
+
+
+def half_inside(overlap: Overlap) -> BoolArray:
+    """Voxels of the overlap's grid at least :data:`REGION_FRACTION` inside its mesh (numpy
+    shape of the grid)."""
+    grid = overlap.grid
+    cover = overlap.covered_volume_per_voxel_mm3()
+    return (cover >= REGION_FRACTION * grid.voxel_volume_mm3).reshape(grid.shape)
+
+
+def labels_on(labels: Image, grid: ImageGrid) -> IntArray:
+    """Label image sampled at ``grid``'s voxel centres (the voxel holding each, 0 off it)."""
+    if labels.grid.same_as(grid):
+        return np.asarray(labels.array).astype(np.int64)
+    voxel = labels.grid.voxel_of(grid.voxel_centers_mm())
+    out = np.asarray(labels.array).ravel()[np.maximum(voxel, 0)].astype(np.int64)
+    return np.where(voxel >= 0, out, 0).reshape(grid.shape)
+
+
+def read_structure_masks(path: str | Path, grid: ImageGrid) -> dict[str, BoolArray]:
+    """Name → voxel mask on ``grid``: RTSTRUCT ROIs by name, or ``label N`` per image label."""
+    from tetdose.compare.rtstruct import is_rtstruct, read_rtstruct, structure_masks
+    from tetdose.io import read_image
+
+    if is_rtstruct(path):
+        return structure_masks(read_rtstruct(path), grid, skip_unusable=True)
+    labels = labels_on(read_image(path), grid)
+    return {f"label {lab}": labels == lab for lab in np.unique(labels[labels > 0])}
+
+
+def read_mesh_dose(path: str | Path) -> tuple[TetMesh, FloatArray]:
+    """A dose VTU (cell_data ``dose``) → (mesh, per-tet dose)."""
+    from tetdose.io import read_mesh
+
+    mesh = read_mesh(path)
+    if "dose" not in mesh.cell_data:
+        raise MeshError(f"{path} has no cell_data 'dose'; give a dose VTU from `tetdose dose`")
+    return mesh, np.asarray(mesh.cell_data["dose"], dtype=np.float64).reshape(-1)
+
+
+def recorded_dose_unit(dose_path: str | Path) -> str:
+    """The dose unit a run record beside ``dose_path`` states (``<stem>.json`` of ``tetdose
+    dose``, ``summary.json`` of ``tetdose dose4d``): "Gy per fraction" when prescribed, else
+    (no prescription, or no record) :data:`~tetdose.prescription.PER_PHOTON_UNIT`."""
+    path = Path(dose_path)
+    for record in (path.with_name(path.name.split(".")[0] + ".json"),
+                   path.with_name("summary.json")):
+        try:
+            units = json.loads(record.read_text(encoding="utf-8")).get("units", {})
+        except (OSError, ValueError, AttributeError):
+            continue
+        if isinstance(units, dict) and isinstance(units.get("dose"), str):
+            return units["dose"]
+    return PER_PHOTON_UNIT
+
+
+def compare_doses(mesh: TetMesh, mesh_dose: FloatArray, voxel_dose: Image, *,
+                  structures: Mapping[str, BoolArray] | None = None, reference: str = "voxel",
+                  threshold_percent: float = 10.0, gamma_max_points: int | None = 200_000,
+                  criteria: tuple[tuple[float, float, bool], ...] = CRITERIA,
+                  unit: str = PER_PHOTON_UNIT) -> Comparison:
+    """Compare a per-tet dose with a voxel dose (module docstring); doses in ``unit``.
+
+    ``structures``: name → voxel mask on the voxel dose's grid (DVHs per structure besides the
+    whole mesh); ``reference``: "voxel" or "mesh", the gamma reference.
+    """
+    if reference not in ("voxel", "mesh"):
+        raise OptionError(f"the gamma reference must be 'voxel' or 'mesh', got {reference!r}")
+    dose = per_tet_dose(mesh, mesh_dose)
+    voxel = voxel_dose.with_array(np.asarray(voxel_dose.array, dtype=np.float64))
+    overlap = compute_overlap(mesh, voxel.grid)
+    mesh_img = mesh_dose_to_grid(mesh, dose, voxel.grid, overlap=overlap)
+    region = half_inside(overlap)
+    if not region.any():
+        raise GeometryMismatchError("no voxel of the dose grid lies at least half inside the "
+                                    "mesh; compare a mesh dose with a voxel dose of the same "
+                                    "patient")
+    ref, ev = (voxel, mesh_img) if reference == "voxel" else (mesh_img, voxel)
+    kmax = np.unravel_index(int(np.argmax(np.where(region, ref.array, -np.inf))),
+                            ref.array.shape)
+    norm = float(ref.array[kmax])
+    figures = [report.dose_slices_figure(mesh_img, voxel, k=int(kmax[0]), unit=unit)]
+    gammas = _gammas(ref, ev, region, int(kmax[0]), norm, criteria, threshold_percent,
+                     gamma_max_points, figures)
+    dvh_summary = _dvhs(mesh, dose, mesh_img, voxel, structures or {}, unit, figures)
+    centre = voxel.grid.index_to_physical(np.array(kmax[::-1], dtype=float))
+    lo_mm, hi_mm = mesh.bounds_mm()
+    for axis, name in enumerate("xyz"):
+        a, b = centre.copy(), centre.copy()
+        a[axis], b[axis] = lo_mm[axis], hi_mm[axis]
+        figures.append(report.profiles_figure(
+            [mesh_profile(mesh, dose, a, b), image_profile(voxel, a, b)], name=f"profile_{name}",
+            unit=unit))
+    above = ref.array >= threshold_percent / 100.0 * norm
+    diff = (mesh_img.array - voxel.array)[above & region]
+    n_region = int(region.sum())
+    summary = {"unit": unit,
+               "region": {"description": "voxels at least half inside the mesh",
+                          "voxels": n_region,
+                          "volume_cm3": n_region * voxel.grid.voxel_volume_mm3 / MM3_PER_CM3,
+                          "reference_max_gy": norm},
+               "mesh_dose_max_gy": float(dose.max()), "voxel_dose_max_gy": float(voxel.array.max()),
+               "mean_abs_difference_gy": float(np.abs(diff).mean()) if diff.size else float("nan"),
+               "gamma": gammas, "dvh": dvh_summary}
+    return Comparison(figures, summary, mesh_img, region)
+
+
+def _gammas(ref: Image, ev: Image, region: BoolArray, k: int, norm: float,
+            criteria: tuple[tuple[float, float, bool], ...], threshold_percent: float,
+            max_points: int | None, figures: list[report.Figure]) -> dict[str, Any]:
+    """Gamma summaries per criterion (sampled over the region) and a figure of slice k each."""
+    gammas = {}
+    for dd, dta, local in criteria:
+        g = gamma_index(ref, ev, dose_percent=dd, dta_mm=dta, local=local,
+                        threshold_percent=threshold_percent, max_points=max_points,
+                        mask=region, normalization_gy=norm)
+        gammas[g.summary()["criterion"]] = g.summary()
+        slice_mask = np.zeros_like(region)
+        slice_mask[k] = region[k]
+        g_slice = gamma_index(ref, ev, dose_percent=dd, dta_mm=dta, local=local,
+                              threshold_percent=threshold_percent, mask=slice_mask,
+                              normalization_gy=norm)
+        figures.append(report.gamma_figure(g_slice, k=k))
+    return gammas
+
+
+def _dvhs(mesh: TetMesh, dose: FloatArray, mesh_img: Image, voxel: Image,
+          masks: Mapping[str, BoolArray], unit: str, figures: list[report.Figure]
+          ) -> dict[str, Any]:
+    """Mesh (by tet volume) and voxel DVHs of the whole mesh and of each structure."""
+    structures = {"mesh": (np.ones(mesh.n_tets, bool), mesh_img.array > 0)}
+    tet_voxel = voxel.grid.voxel_of(mesh.centroids_mm)
+    for name, mask in masks.items():
+        sel = (tet_voxel >= 0) & np.asarray(mask).ravel()[np.maximum(tet_voxel, 0)]
+        structures[name if name != "mesh" else "structure mesh"] = (sel, mask)
+    curves, table = {}, {}
+    for name, (sel, mask) in structures.items():
+        if not sel.any() or not mask.any():
+            continue
+        hm = dvh(dose[sel], mesh.volumes_mm3[sel] / MM3_PER_CM3, name="mesh")  # by volume
+        hv = image_dvh(voxel, mask, name="voxel")
+        curves[name] = [hm, hv]
+        table[name] = {"mesh": hm.metrics(), "voxel": hv.metrics()}
+    figures.append(report.dvh_figure(curves, unit=unit))
+    return table
