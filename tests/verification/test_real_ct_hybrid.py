@@ -19,11 +19,11 @@ from test_real_ct import LUNG_CT, LUNG_MASK, _need, resample_labels
 
 from tetdose.cli import main
 from tetdose.compare.gamma import gamma_index
-from tetdose.compare.resample import grid_dose_to_mesh, mesh_dose_to_grid
 from tetdose.image import Image
 from tetdose.io import read_image, read_mesh, write_image, write_mesh
 from tetdose.mapping.overlap import compute_overlap
 from tetdose.phantoms import mesh_labels
+from tetdose.transfer import grid_dose_to_mesh, mesh_dose_to_grid
 
 pytestmark = pytest.mark.slow
 
