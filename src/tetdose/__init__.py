@@ -31,6 +31,7 @@ from tetdose.transport import (
     run_voxel_transport,
     simulate,
 )
+from tetdose.transport.world import World
 from tetdose.voxelize import voxelize
 
 __all__ = [
@@ -65,6 +66,7 @@ __all__ = [
     "run_study",
     "run_voxel_transport",
     "simulate",
+    "World",
     "update_series",
     "voxelize",
     "write_ct_series",
