@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from tetdose.phantoms import PHANTOMS, SIZES, make_phantom, write_phantom
+from tetdose.phantoms import MESHERS, PHANTOMS, SIZES, make_phantom, write_phantom
 
 
 def add_args(parser: argparse.ArgumentParser) -> None:
@@ -14,10 +14,13 @@ def add_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     parser.add_argument("--size", choices=SIZES, default="medium",
                         help="small (tests, a few thousand tets) or medium (demo; default)")
+    parser.add_argument("--mesher", choices=MESHERS, default="organ",
+                        help="organ (default): one conforming organ-shaped mesh (MMG, "
+                             "tetdose[meshing]); structured: staircase Kuhn grid on exact planes")
 
 
 def run(args: argparse.Namespace) -> int:
-    phantom = make_phantom(args.name, seed=args.seed, size=args.size)
+    phantom = make_phantom(args.name, seed=args.seed, size=args.size, mesher=args.mesher)
     paths = write_phantom(phantom, args.output)
     grid = phantom.ct.grid
     print(f"{args.name} (seed {args.seed}, {args.size}): CT {grid.size[0]}×{grid.size[1]}×"

@@ -23,7 +23,10 @@ level sets, Mmg v5.5+; bound through ``mmgpy``):
    cut (multi-material table, ``split = 0``). The tetrahedra of the rest are dropped at the end.
 5. **Remeshing.** MMG remeshes the labelled mesh with a target edge h_l per label (local
    parameters on tetrahedron references), a Hausdorff tolerance on the interfaces and a size
-   gradation; interfaces between labels stay shared surfaces, so the result is conforming.
+   gradation, without ridge detection (``angle=0``: ridges kept as sharp lines left 3× more
+   slivers on touching boxes); interfaces between labels stay shared surfaces, so the result is
+   conforming. Slivers MMG leaves are then reduced by relocating vertices
+   (:mod:`tetdose.meshing.quality`).
 
 The output is deterministic for the same input and options (MMG is sequential and seedless).
 """
@@ -41,9 +44,9 @@ from tetdose.errors import MeshError
 from tetdose.image import Image
 from tetdose.mesh import TetMesh, signed_volumes_mm3
 from tetdose.meshing import levelset
-from tetdose.meshing.checks import dihedral_angles_deg
 from tetdose.meshing.distance import DistanceField, signed_distance
 from tetdose.meshing.labels import checked_label_ids, default_sizes_mm
+from tetdose.meshing.quality import removed_slivers
 from tetdose.phantoms import _tetgrid
 
 #: Blur of the distance fields [voxels], against the voxel staircase.
@@ -56,12 +59,15 @@ GRADING = 0.5
 HAUSD_FRACTION = 0.1
 #: Size gradation between neighbouring edges (MMG ``hgrad``).
 HGRAD = 1.4
-#: Below this smallest dihedral angle [°], MMG's optimisation pass (``optim``) runs again.
-MIN_DIHEDRAL_DEG = 10.0
-#: Most optimisation passes.
-MAX_OPTIM_PASSES = 2
+#: Tetrahedra with a smaller dihedral angle [°] get their free vertices relocated (quality.py).
+MIN_DIHEDRAL_DEG = 12.0
 #: Smallest edge MMG may make, as a fraction of the smallest target edge (fewer slivers).
 HMIN_FRACTION = 0.25
+
+
+def _i32(a: np.ndarray) -> np.ndarray:
+    """C-contiguous int32 (the binding reads raw memory: a column-permuted view is F-ordered)."""
+    return np.ascontiguousarray(a, dtype=np.int32)
 
 
 def _mmg():  # noqa: ANN202 - module
@@ -171,7 +177,7 @@ def _background(mmgpy, labels: Image, fields: dict[int, DistanceField],  # noqa:
         target = np.full(len(points), h)
         for lab, f in fields.items():
             target = np.minimum(target, surface[lab] + GRADING * np.abs(f(points)))
-        mesh = mmgpy.MmgMesh3D(points, tets.astype(np.int32))
+        mesh = mmgpy.MmgMesh3D(np.ascontiguousarray(points), _i32(tets))
         mesh["metric"] = target.reshape(-1, 1)
         try:
             mesh.remesh(hgrad=2.0, hausd=h, verbose=-1)
@@ -194,8 +200,8 @@ def _cut_labels(mmgpy, points: FloatArray, tets: IntArray, phi: _Fields,  # noqa
         remaining.remove(lab)
         phi.at(points)
         psi = phi.psi(lab, remaining)
-        mesh = mmgpy.MmgMesh3D(points, tets.astype(np.int32))
-        mesh.set_tetrahedra(tets.astype(np.int32), refs)
+        mesh = mmgpy.MmgMesh3D(np.ascontiguousarray(points), _i32(tets))
+        mesh.set_tetrahedra(_i32(tets), refs)
         mesh.set_multi_materials(
             [{"ref": out, "split": 1, "ref_minus": lab, "ref_plus": out + 1}]
             + [{"ref": r, "split": 0, "ref_minus": r, "ref_plus": r} for r in done])
@@ -224,32 +230,22 @@ def _remeshed(mmgpy, points: FloatArray, tets: IntArray, refs: IntArray,  # noqa
               sizes: dict[int, float], spacing_mm: FloatArray) -> TetMesh:
     """Step 5: MMG remesh with a target edge per label; vertices compacted, cells oriented."""
     hmin = HMIN_FRACTION * min(sizes.values())
-    mesh = mmgpy.MmgMesh3D(points, tets.astype(np.int32))
-    mesh.set_tetrahedra(tets.astype(np.int32), refs)
+    mesh = mmgpy.MmgMesh3D(np.ascontiguousarray(points), _i32(tets))
+    mesh.set_tetrahedra(_i32(tets), refs)
     mesh.set_local_parameters(
         [{"type": "tetrahedron", "ref": int(lab), "hmin": hmin, "hmax": float(h),
           "hausd": HAUSD_FRACTION * float(h)} for lab, h in sorted(sizes.items())])
     try:
-        mesh.remesh(hmin=hmin, hmax=max(sizes.values()),
+        mesh.remesh(hmin=hmin, hmax=max(sizes.values()), angle=0,
                     hausd=HAUSD_FRACTION * min(sizes.values()), hgrad=HGRAD, verbose=-1)
     except RuntimeError as exc:
         raise MeshError(f"MMG could not remesh the labels ({exc}); try other target sizes "
                         "(--size-mm)") from exc
     p = np.asarray(mesh.get_vertices(), dtype=np.float64)
     t, r = (np.asarray(a) for a in mesh.get_tetrahedra_with_refs())
-    for _ in range(MAX_OPTIM_PASSES):  # slivers left at ridges: MMG's quality pass removes them
-        if dihedral_angles_deg(p, t).min() >= MIN_DIHEDRAL_DEG:
-            break
-        mesh = mmgpy.MmgMesh3D(p, t.astype(np.int32))
-        mesh.set_tetrahedra(t.astype(np.int32), r.astype(np.int64))
-        try:
-            mesh.remesh(optim=1, hmin=hmin, hausd=HAUSD_FRACTION * min(sizes.values()),
-                        hgrad=HGRAD, verbose=-1)
-        except RuntimeError:  # keep the mesh we have; the checks report its angles
-            break
-        p = np.asarray(mesh.get_vertices(), dtype=np.float64)
-        t, r = (np.asarray(a) for a in mesh.get_tetrahedra_with_refs())
     p, tt = _tetgrid.compact(p, t.astype(np.intp))
-    result = TetMesh(p, tt, r.astype(np.int64)).with_fixed_orientation()
+    oriented = TetMesh(p, tt, r.astype(np.int64)).with_fixed_orientation()
+    p = removed_slivers(oriented.points_mm, oriented.tets, oriented.region, MIN_DIHEDRAL_DEG)
+    result = oriented.moved(p)
     result.check_cells(context="in the MMG label mesh")
     return result
