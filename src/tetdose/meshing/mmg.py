@@ -230,17 +230,23 @@ def _remeshed(mmgpy, points: FloatArray, tets: IntArray, refs: IntArray,  # noqa
               sizes: dict[int, float], spacing_mm: FloatArray) -> TetMesh:
     """Step 5: MMG remesh with a target edge per label; vertices compacted, cells oriented."""
     hmin = HMIN_FRACTION * min(sizes.values())
-    mesh = mmgpy.MmgMesh3D(np.ascontiguousarray(points), _i32(tets))
-    mesh.set_tetrahedra(_i32(tets), refs)
-    mesh.set_local_parameters(
-        [{"type": "tetrahedron", "ref": int(lab), "hmin": hmin, "hmax": float(h),
-          "hausd": HAUSD_FRACTION * float(h)} for lab, h in sorted(sizes.items())])
-    try:
-        mesh.remesh(hmin=hmin, hmax=max(sizes.values()), angle=0,
-                    hausd=HAUSD_FRACTION * min(sizes.values()), hgrad=HGRAD, verbose=-1)
-    except RuntimeError as exc:
-        raise MeshError(f"MMG could not remesh the labels ({exc}); try other target sizes "
-                        "(--size-mm)") from exc
+    error = None
+    for ridges in (0, 1):  # without ridge detection first; MMG fails on some thin layers then
+        mesh = mmgpy.MmgMesh3D(np.ascontiguousarray(points), _i32(tets))
+        mesh.set_tetrahedra(_i32(tets), refs)
+        mesh.set_local_parameters(
+            [{"type": "tetrahedron", "ref": int(lab), "hmin": hmin, "hmax": float(h),
+              "hausd": HAUSD_FRACTION * float(h)} for lab, h in sorted(sizes.items())])
+        try:
+            mesh.remesh(hmin=hmin, hmax=max(sizes.values()), angle=ridges,
+                        hausd=HAUSD_FRACTION * min(sizes.values()), hgrad=HGRAD, verbose=-1)
+        except RuntimeError as exc:
+            error = exc
+            continue
+        break
+    else:
+        raise MeshError(f"MMG could not remesh the labels ({error}); try other target sizes "
+                        "(--size-mm)") from error
     p = np.asarray(mesh.get_vertices(), dtype=np.float64)
     t, r = (np.asarray(a) for a in mesh.get_tetrahedra_with_refs())
     p, tt = _tetgrid.compact(p, t.astype(np.intp))
