@@ -1,7 +1,7 @@
 """Conforming multi-label meshing (MMG level sets): time, tets, checks; mapping error on the real
 lung with organ-shaped meshes against the staircase meshes of bench_mapping.py.
 
-    python bench/bench_meshing.py [mesh] [map] [--lung-sizes 8 5]
+    python bench/bench_meshing.py [mesh] [map] [--cases thorax lung abdomen] [--lung-sizes 8 5]
 
 - ``mesh``: the demo thorax (all organs; and lungs + tumour only), the real lung mask, the
   abdomen label map (31 labels) — wall time, tets, worst |volume error| per label, smallest
@@ -50,7 +50,7 @@ def _timed(fn):  # noqa: ANN001, ANN202
     return out, time.perf_counter() - t0
 
 
-def bench_mesh() -> None:
+def bench_mesh(cases: list[str]) -> None:
     from tetdose.io import read_image
     from tetdose.meshing import conforming_mesh
     from tetdose.phantoms import ORGAN_REGIONS, THORAX_MOVING, make_phantom, organ_mesh
@@ -59,9 +59,9 @@ def bench_mesh() -> None:
     print(f"{'case':<34}{'lab':>4}{'tets':>9}{'s':>8}{'max|dV|%':>9}{'>lim':>7}{'min°':>8}"
           f"{'med°':>8}{'dist mm':>8}{'dup':>6}")
     p = make_phantom("thorax", seed=0, size="medium")
-    for name, regions, size in (("thorax lungs+tumour (default h)", THORAX_MOVING, None),
-                                ("thorax all organs (default h)", ORGAN_REGIONS["thorax"], None),
-                                ("thorax all organs, h 6 mm", ORGAN_REGIONS["thorax"], 6.0)):
+    thorax = (("thorax lungs+tumour (default h)", THORAX_MOVING, None),
+              ("thorax all organs (default h)", ORGAN_REGIONS["thorax"], None))
+    for name, regions, size in thorax if "thorax" in cases else ():
         mesh, dt = _timed(lambda r=regions, s=size: organ_mesh(p, r, s))
         merged = np.zeros(p.labels.array.shape, dtype=np.int32)
         for region, labs in regions.items():
@@ -72,12 +72,13 @@ def bench_mesh() -> None:
         print(f"{data} not found: real masks skipped")
         return
     lung = read_image(data / "lung-elastix" / "3DCT_lung_baseline_mask.mha")
-    for size in (None, 8.0):
+    for size in (None, 8.0) if "lung" in cases else ():
         mesh, dt = _timed(lambda s=size: conforming_mesh(lung, [1], s))
         _summary(f"lung mask, h {'default' if size is None else f'{size:g} mm'}", mesh, lung, dt)
-    seg = read_image(data / "abdomen-dicom" / "example_seg_dicom.nii.gz")
-    mesh, dt = _timed(lambda: conforming_mesh(seg))
-    _summary("abdomen labels (all, default h)", mesh, seg, dt)
+    if "abdomen" in cases:
+        seg = read_image(data / "abdomen-dicom" / "example_seg_dicom.nii.gz")
+        mesh, dt = _timed(lambda: conforming_mesh(seg))
+        _summary("abdomen labels (all, default h)", mesh, seg, dt)
 
 
 def bench_map(args: argparse.Namespace) -> None:
@@ -113,9 +114,11 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("what", nargs="*", choices=("mesh", "map"), default=["mesh", "map"])
     parser.add_argument("--lung-sizes", type=float, nargs="*", default=[8.0, 5.0])
+    parser.add_argument("--cases", nargs="*", choices=("thorax", "lung", "abdomen"),
+                        default=["thorax", "lung", "abdomen"], help="meshing cases")
     args = parser.parse_args()
     if "mesh" in args.what:
-        bench_mesh()
+        bench_mesh(args.cases)
     if "map" in args.what:
         bench_map(args)
 
