@@ -145,19 +145,18 @@ def test_target_size_per_label(scene_mesh) -> None:  # noqa: ANN001
     assert 0.4 * SIZES[2] < fine < 1.3 * SIZES[2]
 
 
-def test_thin_shell_two_voxels_thick_is_kept_and_deterministic() -> None:
-    n, h = 24, 1.5
+def _two_balls(n: int = 20, h: float = 2.0, r_in: float = 6.0, r_out: float = 14.0) -> Image:
     grid = ImageGrid((-(n - 1) * h / 2,) * 3, (h,) * 3, np.eye(3), (n, n, n))
     r = np.linalg.norm(grid.voxel_centers_mm(), axis=1)
-    lab = np.zeros(len(r), dtype=np.int16)
-    lab[r <= 13.0] = 1
-    lab[(r > 13.0) & (r <= 13.0 + 2 * h)] = 2  # a shell two voxels thick around label 1
-    img = Image(lab.reshape(grid.shape), grid)
+    lab = np.where(r <= r_out, 1, 0) + np.where(r <= r_in, 1, 0)
+    return Image(lab.reshape(grid.shape).astype(np.uint8), grid)
+
+
+def test_thin_shell_two_voxels_thick_is_kept() -> None:
+    # Label 2: a shell two voxels (4 mm) thick around the ball of label 1.
+    img = _two_balls(r_in=10.0, r_out=10.0 + 2 * 2.0)
+    img = img.with_array(np.where(img.array == 2, 1, np.where(img.array == 1, 2, 0)))
     a = conforming_mesh(img, None, {1: 4.0, 2: 3.0})
-    b = conforming_mesh(img, None, {1: 4.0, 2: 3.0})
-    np.testing.assert_array_equal(a.points_mm, b.points_mm)
-    np.testing.assert_array_equal(a.tets, b.tets)
-    np.testing.assert_array_equal(a.region, b.region)
     e = mesh_checks(a, img)["labels"]["2"]
     assert e["tets"] > 0
     assert abs(e["volume_error_pct"]) < 3.0
@@ -165,6 +164,14 @@ def test_thin_shell_two_voxels_thick_is_kept_and_deterministic() -> None:
     k, i = np.nonzero(a.neighbors < 0)
     tri = a.points_mm[a.tets[k[:, None], FACE_VERTICES[i]]]
     assert _area(tri[a.region[k] == 1]) < 0.005 * _area(tri)
+
+
+def test_same_input_same_mesh() -> None:
+    img = _two_balls()
+    a, b = (conforming_mesh(img, None, {1: 6.0, 2: 3.0}) for _ in range(2))
+    np.testing.assert_array_equal(a.points_mm, b.points_mm)
+    np.testing.assert_array_equal(a.tets, b.tets)
+    np.testing.assert_array_equal(a.region, b.region)
 
 
 def test_flipped_direction_meshes_in_patient_coordinates(scene) -> None:  # noqa: ANN001
@@ -246,12 +253,7 @@ def test_body_mask_fills_lungs_and_drops_the_couch() -> None:
 
 
 def test_cli_mesh_writes_mesh_and_checks(tmp_path, capsys) -> None:  # noqa: ANN001
-    n, h = 20, 2.0
-    grid = ImageGrid((-(n - 1) * h / 2,) * 3, (h,) * 3, np.eye(3), (n, n, n))
-    r = np.linalg.norm(grid.voxel_centers_mm(), axis=1)
-    lab = np.where(r <= 14.0, 1, 0) + np.where(r <= 6.0, 1, 0)
-    labels = write_image(tmp_path / "lab.nii.gz", Image(lab.reshape(grid.shape).astype(np.uint8),
-                                                         grid))
+    labels = write_image(tmp_path / "lab.nii.gz", _two_balls())
     out = tmp_path / "m.vtu"
     assert main(["mesh", "--labels", str(labels), "--size-mm", "1=6,2=3", "-o", str(out)]) == 0
     mesh = read_mesh(out)
