@@ -272,3 +272,28 @@ def test_missing_label_and_bad_size_errors(scene) -> None:  # noqa: ANN001
         conforming_mesh(scene, [9])
     with pytest.raises(MeshError, match="positive"):
         conforming_mesh(scene, [2], {2: -1.0})
+
+
+def test_cli_mesh_rtstruct_rois_inside_the_auto_body(tmp_path) -> None:  # noqa: ANN001
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from test_rtstruct import CENTRE, R_MM, make_grid, sphere_and_ring, write_rtstruct
+
+    grid = make_grid(np.eye(3))
+    p = grid.voxel_centers_mm() - CENTRE
+    hu = np.where((p[:, 0] / 19.0) ** 2 + (p[:, 1] / 19.0) ** 2 <= 1.0, 40, -1000)
+    ct = write_image(tmp_path / "ct.nrrd", Image(hu.reshape(grid.shape).astype(np.int16), grid))
+    rs = write_rtstruct(tmp_path / "rs.dcm", sphere_and_ring(grid))
+    out = tmp_path / "body.vtu"
+    assert main(["mesh", "--structures", str(rs), "--roi", "Sphere", "--ct", str(ct),
+                 "--body", "auto", "--size-mm", "1=4,2=5", "-o", str(out)]) == 0
+    mesh = read_mesh(out)
+    checks = json.loads((tmp_path / "body.checks.json").read_text())
+    assert checks["names"] == {"1": "Sphere", "2": "body"}
+    assert sorted(np.unique(mesh.region).tolist()) == [1, 2]
+    sphere = mesh.volumes_mm3[mesh.region == 1].sum()
+    assert sphere == pytest.approx(checks["labels"]["1"]["voxel_volume_cm3"] * 1000, rel=0.03)
+    assert sphere == pytest.approx(4 / 3 * math.pi * R_MM**3, rel=0.06)
+    assert checks["conformity"]["interface_faces"] > 0
