@@ -98,7 +98,7 @@ def run(args: argparse.Namespace) -> int:
         if isinstance(sizes, dict):
             raise TetdoseError("--mesher gmsh takes one --size-mm for all labels")
         mesh = mesh_label_image(labels, ids, 6.0 if sizes is None else sizes,
-                                smoothing_vox=args.smooth or 0.0)
+                                smoothing_sigma_vox=args.smooth or 0.0)
     path = write_mesh(args.output, mesh)
     report = mesh_checks(mesh, labels)
     report["mesher"] = args.mesher
