@@ -20,6 +20,8 @@ from tetdose.errors import MeshError, TopologyMismatchError
 DEGENERATE_REL = 1e-10
 #: point_data key holding, for a region-split mesh, the id of the geometric vertex a point copies.
 PARENT_POINT = "parent_point"
+#: Two vertices closer than this [mm] in every coordinate are coincident (a duplicate).
+COINCIDENT_TOL_MM = 1e-6
 #: Face i of a tetrahedron is made of the other three vertices, ordered so its normal points out.
 FACE_VERTICES = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]], dtype=np.intp)
 
@@ -125,7 +127,48 @@ class TetMesh:
             raise MeshError("a face is shared by more than two tetrahedra; the mesh is not manifold")
         out[first] = second // 4
         out[second] = first // 4
+        if PARENT_POINT not in self.point_data:
+            self._refuse_duplicates_on(faces.reshape(-1, 4, 3)[out.reshape(-1, 4) < 0])
         return out.reshape(-1, 4)
+
+    def _refuse_duplicates_on(self, boundary_faces: IntArray) -> None:
+        """MeshError if distinct vertices of boundary faces coincide: regions that touch without
+        sharing vertices (a non-conforming interface, where a transport walk would get lost)."""
+        dup = self.coincident_vertices(np.unique(boundary_faces))
+        if dup.size:
+            raise MeshError(
+                f"{dup.size} vertices coincide with another vertex on region interfaces (first "
+                f"ids {dup[:10].tolist()}): the regions do not share vertices, so the mesh is not "
+                "conforming; merge them with mesh.merged_duplicates(), or mesh the labels as one "
+                "conforming mesh (tetdose mesh)"
+            )
+
+    def coincident_vertices(self, candidates: IntArray | None = None) -> IntArray:
+        """Ids (among ``candidates``, default all) of vertices within ``COINCIDENT_TOL_MM`` of a
+        distinct vertex with a lower id: the duplicates :meth:`merged_duplicates` removes."""
+        ids = np.arange(self.n_points) if candidates is None else np.asarray(candidates)
+        if ids.size < 2:
+            return np.zeros(0, dtype=np.intp)
+        key = np.round(self.points_mm[ids] / COINCIDENT_TOL_MM).astype(np.int64)
+        order = np.lexsort(key.T[::-1])
+        same = np.all(key[order][1:] == key[order][:-1], axis=1)
+        return np.sort(ids[order[1:][same]])
+
+    def merged_duplicates(self) -> TetMesh:
+        """A copy with coincident vertices (within ``COINCIDENT_TOL_MM``) merged into one,
+        so regions that touched through duplicated vertices share them (point_data of the
+        first copy kept; ``PARENT_POINT`` dropped)."""
+        key = np.round(self.points_mm / COINCIDENT_TOL_MM).astype(np.int64)
+        _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
+        keep = np.sort(first)
+        new_id = np.empty(self.n_points, dtype=np.intp)
+        rank = np.empty(len(first), dtype=np.intp)
+        rank[np.argsort(first)] = np.arange(len(first))
+        new_id[:] = rank[inverse.reshape(-1)]
+        point_data = {k: np.asarray(v)[keep] for k, v in self.point_data.items()
+                      if k != PARENT_POINT}
+        return TetMesh(self.points_mm[keep], new_id[self.tets], self.region, point_data,
+                       dict(self.cell_data))
 
     @cached_property
     def boundary_faces(self) -> IntArray:

@@ -50,7 +50,8 @@ from tetdose.mapping.overlap import compute_overlap
 from tetdose.mesh import TetMesh
 from tetdose.motion import BreathingModel, update_series
 from tetdose.motion.ct4d import phase_densities, to_hu, write_4dct
-from tetdose.phantoms import Phantom, make_phantom, mesh_labels, write_phantom
+from tetdose.phantoms import Phantom, make_phantom, write_phantom
+from tetdose.phantoms import organ_mesh as phantoms_organ_mesh
 from tetdose.prescription import Prescription
 from tetdose.transfer import grid_dose_to_mesh, mesh_dose_to_grid
 from tetdose.transport import Plan, TransportSettings
@@ -307,11 +308,14 @@ def _phases_figure(images: list[Image], percent: np.ndarray) -> Figure:
 
 
 def organ_mesh(ph: Phantom, names: tuple[str, ...]) -> TetMesh:
-    """One conforming mesh of the phantom's labels ``names`` (region = label per tet)."""
+    """One conforming, organ-shaped mesh (MMG level sets, :mod:`tetdose.meshing`) of the
+    phantom's labels ``names``; vessels are folded into the lung that holds them (thinner than
+    two voxels in places), so the regions are lung and tumour."""
     label_of = {name: label for label, name in ph.label_names.items()}
-    ids = [label_of[n] for n in names if n in label_of]
-    edge = float(np.cbrt(6.0 * ph.mesh.volumes_mm3.mean()))  # the phantom's own mesh size
-    return mesh_labels(ph.labels, ids, edge)
+    regions = {label_of[n]: (label_of[n],) for n in names if n in label_of and n != "vessels"}
+    if "lung" in label_of and "vessels" in label_of and "vessels" in names:
+        regions[label_of["lung"]] = (label_of["lung"], label_of["vessels"])
+    return phantoms_organ_mesh(ph, regions)
 
 
 def _slug(text: str) -> str:

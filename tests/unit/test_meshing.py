@@ -244,3 +244,15 @@ def test_wall_thinner_than_the_size_fails_with_a_hint() -> None:
     wall = ((r <= RADIUS_MM) & (r >= RADIUS_MM - SPACING_MM)).astype(np.int16)
     with pytest.raises(MeshError, match="smaller target size"):
         meshing.mesh_label_image(image.with_array(wall), [1], 8.0, timeout_s=30)
+
+
+def test_cli_mesh_gmsh_option(ball, tmp_path) -> None:  # noqa: ANN001
+    labels = write_image(tmp_path / "labels.nrrd", ball)
+    out = tmp_path / "mesh.vtu"
+    assert main(["mesh", "--mesher", "gmsh", "--labels", str(labels), "--size-mm", "6",
+                 "--smooth", "0.5", "-o", str(out)]) == 0
+    mesh = read_mesh(out)
+    assert (mesh.region == 1).all()
+    assert mesh.volumes_mm3.sum() == pytest.approx(ball.array.sum() * SPACING_MM**3, rel=0.04)
+    checks = (tmp_path / "mesh.checks.json").read_text()
+    assert '"mesher": "gmsh"' in checks

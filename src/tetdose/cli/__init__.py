@@ -41,7 +41,7 @@ COMMANDS = {
     "dose4d": ("tetdose.cli._dose4d", "dose on every breathing phase, accumulated on the mesh"),
     "demo": ("tetdose.cli._demo", "the whole study on the built-in thorax phantom, with a report"),
     "phantom": ("tetdose.cli._phantom", "write a seeded phantom: CT, labels and tet mesh"),
-    "mesh": ("tetdose.cli._mesh", "tetrahedral mesh of a label image (gmsh; tetdose[meshing])"),
+    "mesh": ("tetdose.cli._mesh", "one conforming tetrahedral mesh of labels (MMG; tetdose[meshing])"),
 }
 
 

@@ -1,35 +1,129 @@
-"""``tetdose mesh --labels LABELS --label N … --size-mm H -o mesh.vtu``: gmsh mesh of labels."""
+"""``tetdose mesh --labels L [--label N …] [--size-mm 2=8,3=3] [--body auto|N] -o mesh.vtu``:
+one conforming tetrahedral mesh of the labels (MMG), with checks printed and written as JSON."""
 
 from __future__ import annotations
 
 import argparse
+import json
+from pathlib import Path
+
+from tetdose.errors import TetdoseError
 
 
 def add_args(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--labels", required=True, metavar="IMAGE",
-                        help="integer label image (NRRD / MHA / NIfTI / DICOM folder)")
+    src = parser.add_argument_group("input (a label image, or an RT Structure Set with --ct)")
+    src.add_argument("--labels", metavar="IMAGE",
+                     help="integer label image (NRRD / MHA / NIfTI / DICOM SEG)")
+    src.add_argument("--structures", metavar="RTSTRUCT",
+                     help="RT Structure Set; its ROIs (--roi) are rasterized on the --ct grid")
+    src.add_argument("--roi", action="append", metavar="NAME",
+                     help="ROI of --structures to mesh (repeat; ROI i becomes label i)")
+    src.add_argument("--ct", metavar="CT", help="CT (file or DICOM folder): the grid for "
+                     "--structures and the image for --body auto")
     parser.add_argument("--label", type=int, action="append", metavar="N",
                         help="label to mesh (repeat for several; default: every non-zero label)")
-    parser.add_argument("--size-mm", type=float, default=6.0, metavar="H",
-                        help="target (largest) tetrahedron edge in mm (default 6)")
-    parser.add_argument("--smooth", type=float, default=0.0, metavar="SIGMA",
-                        help="Gaussian blur of each label mask, in voxels, before marching "
-                             "cubes (default 0: none)")
-    parser.add_argument("--timeout", type=float, default=600.0, metavar="S",
-                        help="time limit for gmsh per label, in seconds (default 600)")
+    parser.add_argument("--size-mm", default=None, metavar="H|L=H,…",
+                        help="target edge in mm: one value for all labels, or per label "
+                             "'2=8,3=3' (labels not named: default from their size)")
+    parser.add_argument("--body", default=None, metavar="auto|N",
+                        help="'auto': add the patient outline from --ct (threshold −500 HU, "
+                             "largest component, holes filled) around the labels; N: the body "
+                             "is label N of the image")
+    parser.add_argument("--mesher", choices=("mmg", "gmsh"), default="mmg",
+                        help="mmg (default): one conforming multi-label mesh; gmsh: each label "
+                             "separately (interfaces do not conform)")
+    parser.add_argument("--smooth", type=float, default=None, metavar="SIGMA",
+                        help="Gaussian blur in voxels (mmg: of the distance fields, default "
+                             "0.75; gmsh: of each mask before marching cubes, default 0)")
     parser.add_argument("-o", "--output", required=True, metavar="MESH",
-                        help="output mesh (VTU recommended), cell_data region = label")
+                        help="output mesh (VTU recommended), cell_data region = label; the "
+                             "checks go to MESH's name + .checks.json")
+
+
+def parse_sizes(text: str | None) -> float | dict[int, float] | None:
+    """'6' → 6.0; '2=8,3=3' → {2: 8.0, 3: 3.0}; None → None (defaults)."""
+    if text is None:
+        return None
+    try:
+        if "=" not in text:
+            return float(text)
+        return {int(k): float(v) for k, v in (item.split("=") for item in text.split(","))}
+    except ValueError as exc:
+        raise TetdoseError(f"cannot read --size-mm {text!r}; write 6 or 2=8,3=3") from exc
+
+
+def _inputs(args: argparse.Namespace):  # noqa: ANN202 - (Image, list[int] | None, names)
+    from tetdose.io import read_image
+    from tetdose.meshing.inputs import labels_from_structures, with_body
+
+    if (args.labels is None) == (args.structures is None):
+        raise TetdoseError("give either --labels IMAGE or --structures RTSTRUCT (with --ct)")
+    ct = read_image(args.ct) if args.ct else None
+    names: dict[int, str] = {}
+    if args.structures:
+        if ct is None:
+            raise TetdoseError("--structures needs --ct CT: the ROIs are rasterized on its grid")
+        labels, names = labels_from_structures(args.structures, ct, args.roi or [])
+    else:
+        labels = read_image(args.labels)
+    ids = args.label
+    if args.body is not None:
+        if args.body == "auto":
+            if ct is None:
+                raise TetdoseError("--body auto needs --ct CT to find the patient outline")
+            labels, body = with_body(labels, ct)
+            names[body] = "body"
+        else:
+            try:
+                body = int(args.body)
+            except ValueError as exc:
+                raise TetdoseError(f"--body takes 'auto' or a label number, got {args.body!r}"
+                                   ) from exc
+        if ids is not None and body not in ids:
+            ids = [*ids, body]
+    return labels, ids, names
 
 
 def run(args: argparse.Namespace) -> int:
-    from tetdose.io import read_image, write_mesh
-    from tetdose.meshing import mesh_label_image
+    from tetdose._atomic import atomic_write_file
+    from tetdose.io import write_mesh
+    from tetdose.meshing import conforming_mesh, mesh_checks, mesh_label_image
 
-    labels = read_image(args.labels)
-    mesh = mesh_label_image(labels, args.label, args.size_mm, smoothing_sigma_vox=args.smooth,
-                            timeout_s=args.timeout)
+    labels, ids, names = _inputs(args)
+    sizes = parse_sizes(args.size_mm)
+    if args.mesher == "mmg":
+        smooth = 0.75 if args.smooth is None else args.smooth
+        mesh = conforming_mesh(labels, ids, sizes, smoothing_vox=smooth)
+    else:
+        if isinstance(sizes, dict):
+            raise TetdoseError("--mesher gmsh takes one --size-mm for all labels")
+        mesh = mesh_label_image(labels, ids, 6.0 if sizes is None else sizes,
+                                smoothing_sigma_vox=args.smooth or 0.0)
     path = write_mesh(args.output, mesh)
-    regions = ", ".join(f"{r}: {(mesh.region == r).sum()}" for r in sorted(set(mesh.region)))
-    print(f"{mesh.n_tets} tets / {mesh.n_points} points (tets per region {regions}), "
-          f"volume {mesh.volumes_mm3.sum() / 1000:.4g} cm³ → {path}")
+    report = mesh_checks(mesh, labels)
+    report["mesher"] = args.mesher
+    report["names"] = {str(k): v for k, v in names.items()}
+    json_path = path.with_name(path.name.rsplit(".", 1)[0] + ".checks.json")
+    with atomic_write_file(json_path) as tmp:
+        Path(tmp).write_text(json.dumps(report, indent=2) + "\n")
+    _print(report, names, path, json_path)
     return 0
+
+
+def _print(report: dict, names: dict[int, str], path: Path, json_path: Path) -> None:
+    c = report["conformity"]
+    print(f"{report['n_tets']} tets / {report['n_points']} points, dihedral min "
+          f"{report['min_dihedral_deg']:.1f}° median {report['median_dihedral_deg']:.1f}°, "
+          f"{report['inverted']} inverted, {c['interface_faces']} interface faces, "
+          f"{c['coincident_vertices']} coincident vertices → {path}")
+    print(f"{'label':>12} {'tets':>8} {'cm³':>9} {'voxel cm³':>10} {'Δvol %':>7} "
+          f"{'min°':>6} {'med°':>6} {'dist mm':>8} {'p95 mm':>7}")
+    for lab, e in report["labels"].items():
+        name = names.get(int(lab), lab)
+        dv = "—" if e["volume_error_pct"] is None else f"{e['volume_error_pct']:+.2f}"
+        print(f"{name:>12} {e['tets']:>8} {e['volume_cm3']:>9.3f} {e['voxel_volume_cm3']:>10.3f} "
+              f"{dv:>7} {e.get('min_dihedral_deg', float('nan')):>6.1f} "
+              f"{e.get('median_dihedral_deg', float('nan')):>6.1f} "
+              f"{e.get('surface_distance_mean_mm', float('nan')):>8.2f} "
+              f"{e.get('surface_distance_p95_mm', float('nan')):>7.2f}")
+    print(f"checks → {json_path}")

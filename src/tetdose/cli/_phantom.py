@@ -6,7 +6,7 @@ import argparse
 
 from tetdose._atomic import atomic_write_dir
 from tetdose.cli._common import add_output_args, check_output, int_at_least
-from tetdose.phantoms import PHANTOMS, SIZES, make_phantom, write_phantom
+from tetdose.phantoms import MESHERS, PHANTOMS, SIZES, make_phantom, write_phantom
 
 
 def add_args(parser: argparse.ArgumentParser) -> None:
@@ -17,11 +17,14 @@ def add_args(parser: argparse.ArgumentParser) -> None:
                         help="random seed, a whole number ≥ 0 (default 0)")
     parser.add_argument("--size", choices=SIZES, default="medium",
                         help="small (tests, a few thousand tets) or medium (demo; default)")
+    parser.add_argument("--mesher", choices=MESHERS, default="organ",
+                        help="organ (default): one conforming organ-shaped mesh (MMG, "
+                             "tetdose[meshing]); structured: staircase Kuhn grid on exact planes")
 
 
 def run(args: argparse.Namespace) -> int:
     out = check_output(args, folder=True)
-    phantom = make_phantom(args.name, seed=args.seed, size=args.size)
+    phantom = make_phantom(args.name, seed=args.seed, size=args.size, mesher=args.mesher)
     with atomic_write_dir(out) as tmp:  # all four files or none; the folder replaced as a whole
         write_phantom(phantom, tmp)
     grid = phantom.ct.grid

@@ -11,16 +11,20 @@
 * ``thorax`` — body (fat, muscle), both lungs with vessel trees, heart, liver under the right
   lung, a 2.5 cm tumour in the lower right lung, ribs and spine; the demo's phantom.
 
-Meshes come from :func:`mesh_labels` (structured Kuhn grid, no external mesher), so users can
-mesh their own segmentation the same way. The same seed gives identical arrays; the seed
-drives the noise, the heterogeneity and the vessel trees.
+Meshes come from :func:`mesh_labels` (structured Kuhn grid, no external mesher: staircase
+surfaces on exact planes), or with ``mesher="organ"`` from :func:`organ_mesh` (one conforming,
+organ-shaped mesh by :func:`tetdose.meshing.conforming_mesh`, extra ``tetdose[meshing]``).
+:data:`THORAX_MOVING` selects the thorax's lungs (vessels folded in) and tumour, for a hybrid
+world where only what moves is meshed and the rest of the body stays CT voxels. The same seed
+gives identical arrays; the seed drives the noise, the heterogeneity and the vessel trees.
 """
 
 from __future__ import annotations
 
 import json
 import os
-from dataclasses import dataclass
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -39,8 +43,19 @@ SIZES: tuple[str, ...] = ("small", "medium")
 MATERIALS: tuple[str, ...] = ("air", "lung", "adipose", "soft_tissue", "muscle",
                               "cortical_bone", "water", "blood")
 
-__all__ = ["MATERIALS", "PHANTOMS", "SIZES", "Phantom", "make_phantom", "mesh_labels",
-           "write_phantom"]
+MESHERS: tuple[str, ...] = ("structured", "organ")
+#: Thorax regions that move with breathing: lungs (label 3, vessels 4 folded in) and tumour (6).
+THORAX_MOVING: dict[int, tuple[int, ...]] = {3: (3, 4), 6: (6,)}
+#: Regions of the organ-shaped meshes (region → labels folded into it), per phantom. Vessel
+#: trees (thinner than two voxels in places) are folded into their lung.
+ORGAN_REGIONS: dict[str, dict[int, tuple[int, ...]]] = {
+    "liver": {2: (2,)},
+    "lung": {2: (2, 3)},
+    "thorax": THORAX_MOVING,  # what moves; the rest of the body stays CT (the hybrid world)
+}
+
+__all__ = ["MATERIALS", "MESHERS", "ORGAN_REGIONS", "PHANTOMS", "SIZES", "THORAX_MOVING",
+           "Phantom", "make_phantom", "mesh_labels", "organ_mesh", "write_phantom"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -64,9 +79,12 @@ class Phantom:
         self.ct.grid.require_same(self.labels.grid, "phantom CT and labels")
 
 
-def make_phantom(name: str, *, seed: int = 0, size: str = "medium", **size_params: object
-                 ) -> Phantom:
+def make_phantom(name: str, *, seed: int = 0, size: str = "medium", mesher: str = "structured",
+                 **size_params: object) -> Phantom:
     """Build the phantom ``name`` (one of :data:`PHANTOMS`) at ``size`` ("small" for tests).
+
+    ``mesher="organ"`` replaces the structured mesh by :func:`organ_mesh` of
+    :data:`ORGAN_REGIONS` (the ``cube`` keeps its 20-tetrahedron mesh).
 
     ``size_params`` override the preset: ``spacing_mm`` (CT voxel size), ``edge_mm`` (mesh cube
     edge; a cube gives 6 tetrahedra), ``snap_iterations`` (0 = staircase surface); for
@@ -83,8 +101,33 @@ def make_phantom(name: str, *, seed: int = 0, size: str = "medium", **size_param
         raise TetdoseError(f"phantom {name!r} takes no parameter(s) {sorted(unknown)}; "
                            f"it accepts {sorted(params)}")
     params.update(size_params)
+    if mesher not in MESHERS:
+        raise TetdoseError(f"unknown mesher {mesher!r}; choose one of {', '.join(MESHERS)}")
     ct, labels, mesh, names, materials = builder(int(seed), **params)
-    return Phantom(ct, labels, mesh, names, materials)
+    phantom = Phantom(ct, labels, mesh, names, materials)
+    if mesher == "organ" and name in ORGAN_REGIONS:
+        phantom = replace(phantom, mesh=organ_mesh(phantom, ORGAN_REGIONS[name]))
+    return phantom
+
+
+def organ_mesh(phantom: Phantom, regions: Mapping[int, Iterable[int]] | Iterable[int],
+               size_mm: float | Mapping[int, float] | None = None) -> TetMesh:
+    """One conforming organ-shaped mesh of ``regions`` of the phantom's labels.
+
+    ``regions`` maps a mesh region to the labels it takes (e.g. :data:`THORAX_MOVING`), or lists
+    labels meshed as themselves; every other label is outside. ``size_mm``: target edge [mm]
+    per region or for all (default from each region's size; see
+    :func:`tetdose.meshing.conforming_mesh`).
+    """
+    from tetdose.meshing import conforming_mesh
+
+    groups = ({int(k): tuple(v) for k, v in regions.items()} if isinstance(regions, Mapping)
+              else {int(k): (int(k),) for k in regions})
+    arr = np.asarray(phantom.labels.array)
+    merged = np.zeros(arr.shape, dtype=np.int32)
+    for region, labels in groups.items():
+        merged[np.isin(arr, labels)] = region
+    return conforming_mesh(phantom.labels.with_array(merged), sorted(groups), size_mm)
 
 
 def write_phantom(phantom: Phantom, out_dir: str | os.PathLike[str]) -> dict[str, Path]:

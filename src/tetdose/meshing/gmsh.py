@@ -1,4 +1,4 @@
-"""Unstructured tetrahedral meshes of label images: marching cubes, then gmsh with size control.
+"""Per-label unstructured tetrahedral meshes (legacy, non-conforming): marching cubes, then gmsh.
 
 Optional extra ``tetdose[meshing]`` (scikit-image, gmsh; imported lazily). Without it, use the
 dependency-free structured mesher :func:`tetdose.phantoms.mesh_labels`.

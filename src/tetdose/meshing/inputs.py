@@ -1,0 +1,58 @@
+"""Mesher inputs as one label image: a label map, RT Structure Set ROIs, a body outline.
+
+* A label image (NRRD / MHA / NIfTI / DICOM SEG that SimpleITK reads) is used as it is.
+* RT Structure Set ROIs are rasterized on the CT grid by
+  :func:`tetdose.compare.rtstruct.structure_masks`; ROI i (in the order asked) becomes label
+  i + 1, later ROIs winning where they overlap.
+* ``body="auto"`` adds the CT's patient outline (:func:`tetdose.meshing.labels.body_mask`),
+  resampled by nearest neighbour onto the label grid when it differs from the CT grid, as label
+  ``max + 1`` under every other label; ``body=N`` only makes sure label N is meshed.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from tetdose.errors import ImageError
+from tetdose.image import Image
+from tetdose.meshing.labels import as_label_array, body_mask
+
+
+def labels_from_structures(path: str, ct: Image, rois: Sequence[str]) -> tuple[Image, dict[int, str]]:
+    """Label image on the CT grid from the ROIs ``rois`` of the RT Structure Set ``path``."""
+    from tetdose.compare.rtstruct import read_rtstruct, structure_masks
+
+    if not rois:
+        raise ImageError("name the ROIs to mesh with --roi NAME (repeat for several)")
+    masks = structure_masks(read_rtstruct(path), ct.grid, names=list(rois))
+    out = np.zeros(ct.grid.shape, dtype=np.int32)
+    names = {}
+    for i, name in enumerate(rois):
+        out[masks[name]] = i + 1
+        names[i + 1] = name
+    return Image(out, ct.grid), names
+
+
+def _on_grid(mask: np.ndarray, source: Image, target: Image) -> np.ndarray:
+    """A boolean mask of ``source``'s grid resampled (nearest voxel) onto ``target``'s grid."""
+    if source.grid.same_as(target.grid):
+        return mask
+    import SimpleITK as sitk
+
+    moving = source.with_array(mask.astype(np.uint8)).to_sitk()
+    resampled = sitk.Resample(moving, target.to_sitk(), sitk.Transform(), sitk.sitkNearestNeighbor,
+                              0, sitk.sitkUInt8)
+    return sitk.GetArrayFromImage(resampled).astype(bool)
+
+
+def with_body(labels: Image, ct: Image, body_label: int | None = None) -> tuple[Image, int]:
+    """``labels`` with the CT's body outline added as ``body_label`` (default max + 1) where
+    no other label is; returns the image and the body label."""
+    arr = as_label_array(labels.array).astype(np.int32)
+    body = _on_grid(body_mask(ct.array), ct, labels)
+    lab = int(arr.max()) + 1 if body_label is None else int(body_label)
+    out = arr.copy()
+    out[body & (arr == 0)] = lab
+    return Image(out, labels.grid), lab

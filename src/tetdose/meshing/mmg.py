@@ -1,0 +1,257 @@
+"""One conforming multi-label tetrahedral mesh of a label image, by level-set discretisation (MMG).
+
+Method (MMG: Dapogny, Dobrzynski & Frey, J. Comput. Phys. 262 (2014) 358–378; multi-material
+level sets, Mmg v5.5+; bound through ``mmgpy``):
+
+1. **Distance fields.** φ_l = signed distance [mm] of every selected label l and φ_0 = −φ_union
+   of the unselected rest (:mod:`tetdose.meshing.distance`), lightly smoothed. The labels are
+   the Voronoi-like partition {x : φ_l(x) < φ_m(x) ∀ m ≠ l}, whose interface between touching
+   labels l | m is the zero set of ψ_lm = (φ_l − φ_m)/2 — the same surface seen from both sides,
+   so nested labels (tumour in lung) and side-by-side labels (liver next to kidney) are alike.
+2. **Background mesh.** A Kuhn grid of the labels' box (edge = the largest target size) is
+   adapted by MMG to the size field s(x) = min_l (h_s,l + ½|φ_l(x)|), fine (h_s,l ≈ h_l/3, at
+   least one voxel) near every label surface and graded away from it: the zero sets of the
+   piecewise-linear φ are then accurate where they matter (a 6 mm uniform background shrank a
+   2.5 cm tumour by 17 %).
+3. **Volume.** Per label, the constant shift δ_l for which {ψ_l < δ_l}, ψ_l = (φ_l − min_m φ_m)/2
+   on the background mesh, has exactly the voxel volume (:func:`levelset.volume_shift`); δ is a
+   fraction of a voxel (it takes back the blur's curvature shift and the linear interpolation's
+   corner cutting).
+4. **Discretisation.** Labels are cut out one at a time, the smallest first (inner labels before
+   the ones around them): MMG's level-set mode splits the still-unassigned material along
+   ψ_l = (φ_l − min_{m unassigned} φ_m)/2 into label l and the rest, keeping every label already
+   cut (multi-material table, ``split = 0``). The tetrahedra of the rest are dropped at the end.
+5. **Remeshing.** MMG remeshes the labelled mesh with a target edge h_l per label (local
+   parameters on tetrahedron references), a Hausdorff tolerance on the interfaces and a size
+   gradation, without ridge detection (``angle=0``: ridges kept as sharp lines left 3× more
+   slivers on touching boxes); interfaces between labels stay shared surfaces, so the result is
+   conforming. Slivers MMG leaves are then reduced by relocating vertices
+   (:mod:`tetdose.meshing.quality`).
+
+The output is deterministic for the same input and options (MMG is sequential and seedless).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Mapping
+
+import numpy as np
+
+from tetdose._optional import import_optional
+from tetdose._typing import FloatArray, IntArray
+from tetdose.errors import MeshError
+from tetdose.image import Image
+from tetdose.mesh import TetMesh, signed_volumes_mm3
+from tetdose.meshing import levelset
+from tetdose.meshing.distance import DistanceField, signed_distance
+from tetdose.meshing.labels import checked_label_ids, default_sizes_mm
+from tetdose.meshing.quality import removed_slivers
+from tetdose.phantoms import _tetgrid
+
+#: Blur of the distance fields [voxels], against the voxel staircase.
+SMOOTHING_VOX = 0.75
+#: Background size near a label surface, as a fraction of the label's target edge.
+SURFACE_FRACTION = 0.5
+#: Growth of the background size with the distance to the nearest surface [mm/mm].
+GRADING = 0.5
+#: Hausdorff tolerance on the interfaces, as a fraction of the label's target edge.
+HAUSD_FRACTION = 0.1
+#: Size gradation between neighbouring edges (MMG ``hgrad``).
+HGRAD = 1.4
+#: Tetrahedra with a smaller dihedral angle [°] get their free vertices relocated (quality.py).
+MIN_DIHEDRAL_DEG = 12.0
+#: Smallest edge MMG may make, as a fraction of the smallest target edge (fewer slivers).
+HMIN_FRACTION = 0.25
+
+
+def _i32(a: np.ndarray) -> np.ndarray:
+    """C-contiguous int32 (the binding reads raw memory: a column-permuted view is F-ordered)."""
+    return np.ascontiguousarray(a, dtype=np.int32)
+
+
+def _mmg():  # noqa: ANN202 - module
+    return import_optional("mmgpy", "meshing", "conforming meshing of labels with MMG")
+
+
+def conforming_mesh(labels: Image, label_ids: Iterable[int] | None = None,
+                    size_mm: float | Mapping[int, float] | None = None, *,
+                    smoothing_vox: float = SMOOTHING_VOX, keep_volume: bool = True) -> TetMesh:
+    """One conforming tetrahedral mesh of the labels ``label_ids`` (default: all ≠ 0).
+
+    Parameters
+    ----------
+    labels : Image
+        Integer label image (0 = background; any orthonormal direction).
+    label_ids : iterable of int, optional
+        Labels to mesh; each becomes a region (``mesh.region``), sharing vertices and faces with
+        the labels it touches. Unselected labels count as outside.
+    size_mm : float or {label: float}, optional
+        Target edge [mm], one for all or per label; missing labels get
+        :func:`~tetdose.meshing.labels.default_sizes_mm` (from each label's size and thickness).
+    smoothing_vox : float
+        Gaussian blur [voxels] of the distance fields (0 = none: a faint voxel staircase stays).
+    keep_volume : bool
+        Shift each label's level set so that its volume equals its voxel volume (step 3).
+    """
+    mmgpy = _mmg()
+    arr = np.asarray(labels.array)
+    ids = checked_label_ids(arr, label_ids)
+    grid = labels.grid
+    fields = {lab: signed_distance(arr == lab, grid, smoothing_vox=smoothing_vox) for lab in ids}
+    union = signed_distance(np.isin(arr, ids), grid, smoothing_vox=smoothing_vox)
+    targets = {lab: float(np.count_nonzero(arr == lab)) * grid.voxel_volume_mm3 for lab in ids}
+    sizes = default_sizes_mm(targets, {lab: f.max_depth_mm for lab, f in fields.items()},
+                             grid.spacing_mm)
+    if isinstance(size_mm, Mapping):
+        sizes.update({int(k): float(v) for k, v in size_mm.items()})
+    elif size_mm is not None:
+        sizes = dict.fromkeys(sizes, float(size_mm))
+    bad = {k: v for k, v in sizes.items() if not (math.isfinite(v) and v > 0)}
+    if bad:
+        raise MeshError(f"target sizes must be positive mm, got {bad}; fix --size-mm")
+    surface = {lab: max(SURFACE_FRACTION * sizes[lab], float(grid.spacing_mm.min())) for lab in ids}
+    points, tets = _background(mmgpy, labels, fields, union, sizes, surface)
+    phi = _Fields(fields, union, points)
+    if keep_volume:
+        phi.shift_to_volumes(tets, targets, surface)
+    order = sorted(ids.tolist(), key=lambda lab: (targets[lab], lab))
+    points, tets, refs = _cut_labels(mmgpy, points, tets, phi, order)
+    return _remeshed(mmgpy, points, tets, refs, sizes, grid.spacing_mm)
+
+
+class _Fields:
+    """φ_l at the current vertices, with per-label level shifts; φ_0 = −φ_union (outside)."""
+
+    def __init__(self, fields: dict[int, DistanceField], union: DistanceField,
+                 points: FloatArray) -> None:
+        self.fields, self.union = fields, union
+        self.shift = dict.fromkeys(fields, 0.0)
+        self.at(points)
+
+    def at(self, points: FloatArray) -> None:
+        """Sample every field at ``points`` [mm] (the current mesh vertices)."""
+        self.points = points
+        self.values = {lab: f(points) - 2.0 * self.shift[lab] for lab, f in self.fields.items()}
+        self.values[0] = -self.union(points)
+
+    def psi(self, lab: int, others: Iterable[int]) -> FloatArray:
+        """ψ = (φ_lab − min_others φ)/2 [mm] at the current vertices."""
+        rest = np.min([self.values[m] for m in others], axis=0)
+        return 0.5 * (self.values[lab] - rest)
+
+    def shift_to_volumes(self, tets: IntArray, targets: dict[int, float],
+                         surface: dict[int, float]) -> None:
+        """Step 3: per-label level shifts giving each label its voxel volume on ``tets``."""
+        vols = np.abs(signed_volumes_mm3(self.points, tets))
+        for _ in range(2):  # the shifts of touching labels interact: a second pass settles them
+            for lab in self.fields:
+                others = [m for m in self.values if m != lab]
+                psi = self.psi(lab, others)[tets]
+                delta = levelset.volume_shift(psi, vols, targets[lab], 0.5 * surface[lab])
+                self.shift[lab] += delta
+                self.values[lab] = self.values[lab] - 2.0 * delta
+
+
+def _background(mmgpy, labels: Image, fields: dict[int, DistanceField],  # noqa: ANN001
+                union: DistanceField, sizes: dict[int, float], surface: dict[int, float]
+                ) -> tuple[FloatArray, IntArray]:
+    """Kuhn grid of the labels' box, adapted by MMG to the surface size field (step 2)."""
+    grid = labels.grid
+    arr_union = union.phi_mm < 0
+    kji = np.nonzero(arr_union)
+    lo_idx = np.array([kji[2].min(), kji[1].min(), kji[0].min()]) + union.lo_ijk - 0.5
+    hi_idx = np.array([kji[2].max(), kji[1].max(), kji[0].max()]) + union.lo_ijk + 0.5
+    h = max(sizes.values())
+    margin = 2.0 * max(surface.values()) + 2.0 * grid.spacing_mm.max()
+    lo_q = lo_idx * grid.spacing_mm - margin
+    hi_q = hi_idx * grid.spacing_mm + margin
+    cells = tuple(int(n) for n in np.maximum(np.ceil((hi_q - lo_q) / h), 1))
+    edge = (hi_q - lo_q) / np.array(cells)
+    nodes_q = _tetgrid.grid_nodes(lo_q, edge, cells)
+    tets = _tetgrid.grid_tets(cells, "kuhn")
+    points = grid.origin_mm + nodes_q @ grid.direction.T
+    if np.linalg.det(grid.direction) < 0:
+        tets = tets[:, [0, 2, 1, 3]]
+    for _ in range(2):  # the second pass samples the size field on the refined vertices
+        target = np.full(len(points), h)
+        for lab, f in fields.items():
+            target = np.minimum(target, surface[lab] + GRADING * np.abs(f(points)))
+        mesh = mmgpy.MmgMesh3D(np.ascontiguousarray(points), _i32(tets))
+        mesh["metric"] = target.reshape(-1, 1)
+        try:
+            mesh.remesh(hgrad=2.0, hausd=h, verbose=-1)
+        except RuntimeError as exc:
+            raise MeshError(f"MMG could not build the background mesh ({exc}); try larger "
+                            "target sizes (--size-mm)") from exc
+        points = np.asarray(mesh.get_vertices(), dtype=np.float64)
+        tets = np.asarray(mesh.get_tetrahedra(), dtype=np.intp)
+    return points, tets
+
+
+def _cut_labels(mmgpy, points: FloatArray, tets: IntArray, phi: _Fields,  # noqa: ANN001
+                order: list[int]) -> tuple[FloatArray, IntArray, IntArray]:
+    """Step 4: split the unassigned material label by label; drop what is left outside."""
+    out = max(order) + 1
+    refs = np.full(len(tets), out, dtype=np.int64)
+    remaining = [0, *order]
+    done: list[int] = []
+    for lab in order:
+        remaining.remove(lab)
+        phi.at(points)
+        psi = phi.psi(lab, remaining)
+        mesh = mmgpy.MmgMesh3D(np.ascontiguousarray(points), _i32(tets))
+        mesh.set_tetrahedra(_i32(tets), refs)
+        mesh.set_multi_materials(
+            [{"ref": out, "split": 1, "ref_minus": lab, "ref_plus": out + 1}]
+            + [{"ref": r, "split": 0, "ref_minus": r, "ref_plus": r} for r in done])
+        try:
+            mesh.remesh_levelset(psi.reshape(-1, 1), noinsert=1, noswap=1, nomove=1,
+                                 verbose=-1)
+        except RuntimeError as exc:
+            raise MeshError(f"MMG could not cut label {lab} out of the background ({exc}); "
+                            f"give it a smaller target size (--size-mm {lab}=H) or smooth "
+                            "the labels") from exc
+        out += 1
+        done.append(lab)
+        points = np.asarray(mesh.get_vertices(), dtype=np.float64)
+        t, r = mesh.get_tetrahedra_with_refs()
+        tets, refs = np.asarray(t, dtype=np.intp), np.asarray(r, dtype=np.int64)
+    missing = sorted(set(order) - set(np.unique(refs).tolist()))
+    if missing:
+        raise MeshError(f"label(s) {missing} vanished in the level-set discretisation; give "
+                        "them a smaller target size (--size-mm L=H)")
+    keep = refs != out
+    points, tets = _tetgrid.compact(points, tets[keep])
+    return points, tets, refs[keep]
+
+
+def _remeshed(mmgpy, points: FloatArray, tets: IntArray, refs: IntArray,  # noqa: ANN001
+              sizes: dict[int, float], spacing_mm: FloatArray) -> TetMesh:
+    """Step 5: MMG remesh with a target edge per label; vertices compacted, cells oriented."""
+    hmin = HMIN_FRACTION * min(sizes.values())
+    error = None
+    for ridges in (0, 1):  # without ridge detection first; MMG fails on some thin layers then
+        mesh = mmgpy.MmgMesh3D(np.ascontiguousarray(points), _i32(tets))
+        mesh.set_tetrahedra(_i32(tets), refs)
+        mesh.set_local_parameters(
+            [{"type": "tetrahedron", "ref": int(lab), "hmin": hmin, "hmax": float(h),
+              "hausd": HAUSD_FRACTION * float(h)} for lab, h in sorted(sizes.items())])
+        try:
+            mesh.remesh(hmin=hmin, hmax=max(sizes.values()), angle=ridges,
+                        hausd=HAUSD_FRACTION * min(sizes.values()), hgrad=HGRAD, verbose=-1)
+        except RuntimeError as exc:
+            error = exc
+            continue
+        break
+    else:
+        raise MeshError(f"MMG could not remesh the labels ({error}); try other target sizes "
+                        "(--size-mm)") from error
+    p = np.asarray(mesh.get_vertices(), dtype=np.float64)
+    t, r = (np.asarray(a) for a in mesh.get_tetrahedra_with_refs())
+    p, tt = _tetgrid.compact(p, t.astype(np.intp))
+    oriented = TetMesh(p, tt, r.astype(np.int64)).with_fixed_orientation()
+    p = removed_slivers(oriented.points_mm, oriented.tets, oriented.region, MIN_DIHEDRAL_DEG)
+    result = oriented.moved(p)
+    result.check_cells(context="in the MMG label mesh")
+    return result
