@@ -330,3 +330,22 @@ def test_cli_dose_on_mesh_inside_ct_then_compare(tmp_path):
     summary = json.loads((tmp_path / "cmp" / "summary.json").read_text())
     assert summary["region"]["voxels"] == int(inside.sum())
     assert summary["region"]["volume_cm3"] == pytest.approx(40.0**3 / 1000.0)
+
+
+def test_beams_that_miss_the_world_are_refused_and_long_runs_announced(tmp_path):
+    """A beam aimed away from the mesh and the CT is an error before the run; a run estimated
+    above LONG_RUN_S is announced with its estimated duration."""
+    from tetdose.errors import PlanError
+    from tetdose.transport import job
+
+    mesh, ct = _slab_world()
+    away = Plan((PhotonSource("pencil", [0.0, 0.0, -40.0], [0, 0, -1], energies_mev=[1.0]),))
+    with pytest.raises(PlanError, match="miss"):
+        simulate(World(mesh=mesh, density=ct), away, _settings(2000, 0), progress=False)
+    with pytest.raises(PlanError, match="miss"):
+        simulate(mesh, away, _settings(2000, 0), progress=False)
+    jb, _ = job.build_job(World(mesh=mesh, density=ct), SLAB_PLAN, _settings(10**12, 0))
+    with pytest.warns(UserWarning, match=r"will take about .* \(.*µs per history"):
+        estimate = job.preflight(jb, job.cross_sections(jb, _settings(10**12, 0)),
+                                 _settings(10**12, 0), 2)
+    assert estimate > job.LONG_RUN_S

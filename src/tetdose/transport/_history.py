@@ -54,7 +54,8 @@ from tetdose.transport._physics import interact, transport_coefficients
 #: Ledger columns and counter columns.
 L_SOURCE, L_DEPOSITED, L_ESCAPED, L_CUTOFF, L_LOST = 0, 1, 2, 3, 4
 C_LOST, C_RELOCATIONS, C_STACK_FULL, C_CROSSINGS, C_VOXEL_STEPS, C_SWITCHES = 0, 1, 2, 3, 4, 5
-N_LEDGER, N_COUNTS = 5, 6
+C_MISSED = 6  # source photons whose ray meets neither the mesh nor the grid
+N_LEDGER, N_COUNTS = 5, 7
 #: Flight outcomes (ENTERS: a voxel flight reached the mesh).
 INTERACTS, ESCAPES, LOST, ENTERS = 0, 1, 2, 3
 #: Mesh ↔ voxel switches allowed in one flight before the photon is counted lost.

@@ -20,6 +20,7 @@ from numba import njit, prange
 from tetdose._random import seed_for
 from tetdose.transport._geometry_world import WorldGeometry, start_cell
 from tetdose.transport._history import (
+    C_MISSED,
     C_RELOCATIONS,
     L_ESCAPED,
     L_SOURCE,
@@ -61,6 +62,7 @@ def run_world(tet, vox, tri_lo, tri_n, tri_start, tri_items, xs, src, seed, stre
             cnt[C_RELOCATIONS] += n_reloc
             if cell < 0:
                 led[L_ESCAPED] += e
+                cnt[C_MISSED] += 1
                 continue
             history(wg, xs, e, cell, x, y, z, u, v, w, state, cutoff, track, tally, led, cnt,
                     stack)

@@ -38,6 +38,7 @@ from tetdose.transport.job import (
     assemble,
     build_job,
     cross_sections,
+    preflight,
     run_batches,
 )
 from tetdose.transport.model import Plan, TransportSettings
@@ -125,8 +126,10 @@ def simulate_distributed(client: Any,  # noqa: ANN401
     t0 = time.perf_counter()
     jobs, tasks, scattered, xs_of = [], [], [], {}
     on_grids = []
+    workers = sum(client.nthreads().values())
     for geom, st in zip(geoms, each, strict=True):
         job, on_grid = build_job(as_world(geom, labels), plan, st)
+        preflight(job, cross_sections(job, st), st, workers)  # here, before any task is sent
         on_grids.append(on_grid)
         # Scatter lists (a bare NamedTuple goes element-wise) under fresh keys: with content keys
         # (hash=True) equal phases (10 % and 90 % of a symmetric cycle) share one key, and a task

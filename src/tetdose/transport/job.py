@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import time
 import warnings
+from dataclasses import replace
 from typing import NamedTuple
 
 import numba
@@ -18,9 +19,10 @@ from tqdm.auto import tqdm
 
 from tetdose._typing import FloatArray, IntArray
 from tetdose._version import __version__
+from tetdose.errors import PlanError
 from tetdose.image import ImageGrid
 from tetdose.transport._geometry_world import WorldGeometry
-from tetdose.transport._history import N_COUNTS, N_LEDGER
+from tetdose.transport._history import C_MISSED, N_COUNTS, N_LEDGER
 from tetdose.transport._run import run_world
 from tetdose.transport._source import SourceArrays
 from tetdose.transport.model import Plan, TransportSettings
@@ -38,6 +40,10 @@ from tetdose.transport.xs import (
 BATCH_GROUP_PER_THREAD = 2
 #: The progress bar appears only for runs longer than this [s].
 PROGRESS_DELAY_S = 2.0
+#: Histories of the pilot run that checks the beams reach the world and times a history.
+PILOT_HISTORIES = 1000
+#: A run estimated to take longer than this [s] is announced (warning) before it starts.
+LONG_RUN_S = 600.0
 
 Rows = tuple[FloatArray, FloatArray, IntArray]
 
@@ -112,10 +118,43 @@ def run_batches(job: TransportJob, xs: CrossSections, settings: TransportSetting
     return energy, ledger, counts
 
 
+def preflight(job: TransportJob, xs: CrossSections, settings: TransportSettings,
+              workers: int) -> float:
+    """Run the first :data:`PILOT_HISTORIES` histories (the run's own streams, discarded): refuse
+    beams that reach neither the mesh nor the CT, and warn when the whole run is estimated to
+    take longer than :data:`LONG_RUN_S` on ``workers`` parallel workers. Returns the estimate [s].
+    """
+    n = min(settings.n_histories, PILOT_HISTORIES)
+    pilot = replace(settings, n_histories=n, n_batches=2)
+    t0 = time.perf_counter()
+    _, _, counts = run_batches(job, xs, pilot, 0, 2)
+    seconds = time.perf_counter() - t0
+    if counts[:, C_MISSED].sum() == n:
+        raise PlanError(f"none of the first {n} source photons reaches the {job.kind} world: "
+                        "the beams miss it; check the beams' position_mm / direction / "
+                        "isocentre against the mesh and CT coordinates (mm, patient frame)")
+    estimate = seconds / n * settings.n_histories / max(workers, 1)
+    if estimate > LONG_RUN_S:
+        warnings.warn(f"{settings.n_histories:.3g} histories will take about "
+                      f"{_duration(estimate)} here ({seconds / n * 1e6:.0f} µs per history on "
+                      f"{max(workers, 1)} worker(s)); fewer histories finish sooner",
+                      stacklevel=4)
+    return estimate
+
+
+def _duration(seconds: float) -> str:
+    for unit, size in (("days", 86400.0), ("h", 3600.0), ("min", 60.0)):
+        if seconds >= size:
+            return f"{seconds / size:.3g} {unit}"
+    return f"{seconds:.0f} s"
+
+
 def execute(job: TransportJob, on_grid: MeshOnGrid | None, plan: Plan,
             settings: TransportSettings, progress: bool | None) -> DoseResult:
-    """Run all batches here in groups (so the progress bar moves) and assemble the result."""
+    """Check the beams reach the world and estimate the time (:func:`preflight`), run all
+    batches here in groups (so the progress bar moves) and assemble the result."""
     xs = cross_sections(job, settings)
+    preflight(job, xs, settings, numba.get_num_threads())
     nb = settings.n_batches
     group = BATCH_GROUP_PER_THREAD * max(1, numba.get_num_threads())
     rows = []
@@ -146,6 +185,9 @@ def assemble(job: TransportJob, on_grid: MeshOnGrid | None, plan: Plan,
                         job.grid, {"materials": job.names, "n_cells": len(job.mass_g),
                                    **(extra or {})},
                         n_tets=job.n_tets, on_grid=on_grid)
+    if not np.any(energy):
+        warnings.warn("the dose is zero everywhere: no photon interacted in the world (is it "
+                      "vacuum, or do the beams only graze it?)", stacklevel=3)
     if result.lost_photons > 1e-4 * settings.n_histories:
         warnings.warn(f"{result.lost_photons} photons were lost in the geometry "
                       f"({result.relocations} relocations); check the mesh", stacklevel=3)

@@ -41,7 +41,7 @@ if TYPE_CHECKING:
 
 LEDGER_KEYS = ("source_mev", "deposited_mev", "escaped_mev", "cutoff_mev", "lost_mev")
 COUNT_KEYS = ("lost_photons", "relocations", "stack_overflows", "tet_crossings", "voxel_steps",
-              "mesh_voxel_switches")
+              "mesh_voxel_switches", "missed_world")
 
 
 class FrozenExtra(dict):
@@ -64,8 +64,9 @@ class DoseResult:
 
     ``energy_per_batch_mev`` (B, n_cells) energy tallied per batch; ``histories_per_batch`` (B,);
     ``mass_g`` (n_cells,); ``ledger_per_batch_mev`` (B, 5) columns :data:`LEDGER_KEYS`;
-    ``counts_per_batch`` (B, 6): lost photons, relocations, secondaries dropped off a full stack,
-    tetrahedron crossings, voxel steps, mesh ↔ voxel switches (:data:`COUNT_KEYS`).
+    ``counts_per_batch`` (B, 7): lost photons, relocations, secondaries dropped off a full stack,
+    tetrahedron crossings, voxel steps, mesh ↔ voxel switches, source photons that missed the
+    world (:data:`COUNT_KEYS`).
     ``geometry``: "mesh", "voxel" or "hybrid"; ``n_tets`` leading cells are tetrahedra;
     ``on_grid`` (hybrid only) the mesh's overlap pairs with the grid, for :meth:`combined`.
     """
