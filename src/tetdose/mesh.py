@@ -220,7 +220,8 @@ class TetMesh:
             raise MeshError(
                 f"{len(inverted)} inverted tetrahedra (negative volume){where}, ids "
                 f"{inverted[:20].tolist()}; if the whole mesh uses the opposite vertex order, "
-                "pass fix_orientation=True (CLI: --fix-orientation)"
+                "map it with `tetdose map --fix-orientation` (API: read_mesh(path, "
+                "fix_orientation=True)), which writes a corrected mesh for the other commands"
             )
 
     def with_fixed_orientation(self) -> TetMesh:

@@ -130,10 +130,10 @@ def test_dose_result_is_immutable_and_with_extra_returns_a_new_one():
     from dataclasses import replace
 
     from tetdose.prescription import PER_PHOTON_UNIT
-    from tetdose.transport.result import DoseResult
+    from tetdose.transport.result import COUNT_KEYS, DoseResult
 
     r = DoseResult(np.ones((2, 3)), np.array([5, 5]), np.ones(3), np.zeros((2, 5)),
-                   np.zeros((2, 6), np.int64), 1.0, 0, "track_length", "mesh", 0.1, "0",
+                   np.zeros((2, len(COUNT_KEYS)), np.int64), 1.0, 0, "track_length", "mesh", 0.1, "0",
                    extra={"a": 1})
     with pytest.raises(TypeError, match="with_extra"):
         r.extra["b"] = 2
