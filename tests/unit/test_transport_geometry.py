@@ -279,3 +279,23 @@ def test_kernels_refuse_to_allocate():
     assert borrows(np.arange(4.0)) == 3.0
     with pytest.raises(NumbaError):
         allocates(3)
+
+
+def test_supporting_faces_of_a_box_and_of_a_u():
+    """Every boundary face of a convex box supports the mesh; in a U the faces of the notch do
+    not (a photon leaving through them can come back), the outer ones do."""
+    from tetdose.transport._geometry_tet import SUPPORTING
+
+    box = box_mesh((3, 1, 2), (120.0, 40.0, 80.0), origin_mm=(-60.0, -20.0, 0.0))
+    g = mesh_geometry(box, np.ones(box.n_points), np.zeros(box.n_tets, dtype=np.intp))
+    assert np.all((g.link >= 0) | (g.link == SUPPORTING))
+    keep = np.ones(box.n_tets, bool)
+    keep[6 * 4:6 * 4 + 6] = False  # cell (i=1, k=1): the notch
+    u = TetMesh(box.points_mm, box.tets[keep])
+    gu = mesh_geometry(u, np.ones(u.n_points), np.zeros(u.n_tets, dtype=np.intp))
+    k, f = np.nonzero(gu.link < 0)
+    normal_z = gu.planes[k, f, 2]
+    notch_floor = (np.abs(normal_z - 1.0) < 1e-9) & np.isclose(gu.planes[k, f, 3], 40.0)
+    assert notch_floor.any() and np.all(gu.link[k[notch_floor], f[notch_floor]] == -1)
+    outer_bottom = (np.abs(normal_z + 1.0) < 1e-9)
+    assert np.all(gu.link[k[outer_bottom], f[outer_bottom]] == SUPPORTING)

@@ -37,6 +37,10 @@ from tetdose.transport._prefetch import prefetch
 
 #: Zero-length hops allowed in a row before the photon is relocated.
 MAX_ZERO_STEPS = 64
+#: ``link`` of a boundary face whose plane supports the whole mesh (every point behind it): a
+#: photon leaving through it moves away from the mesh for good (n·x grows along the ray), so
+#: no re-entry ray cast is needed. Other boundary faces: −1.
+SUPPORTING = -2
 #: Relative tolerance on barycentric coordinates in point location and triangle hits.
 BARY_TOL = 1e-9
 

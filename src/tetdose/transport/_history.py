@@ -34,6 +34,7 @@ from tetdose._jit import kernel
 from tetdose._random import next_uniform
 from tetdose.transport._geometry_tet import (
     MAX_ZERO_STEPS,
+    SUPPORTING,
     density_at,
     exit_face,
     next_tet,
@@ -118,11 +119,12 @@ def flight_mesh(g, xs, e, k, entry, x, y, z, u, v, w, tau, track, tally, counts)
         need -= col_exit
         zero_steps = zero_steps + 1 if t == 0.0 else 0
         x, y, z = x + t * u, y + t * v, z + t * w
+        nxt = g.link[k, f]
         k, entry = next_tet(g, k, f)
         crossings += 1
-        if k < 0:
+        if k < 0:  # the boundary: k = −1, or −2 if the face's plane supports the whole mesh
             counts[C_CROSSINGS] += crossings
-            return ESCAPES, k, x, y, z, need * mu / MM_PER_CM
+            return ESCAPES, nxt, x, y, z, need * mu / MM_PER_CM
 
 
 @njit(cache=True, inline="always")
@@ -200,7 +202,7 @@ def flight(wg, xs, e, cell, x, y, z, u, v, w, tau, track, tally, counts):
                 return out, k, x, y, z
             t_min = HIT_TOL_MM if (x == x0 and y == y0 and z == z0) else -HIT_TOL_MM
             cell = voxel_cell_at(wg, x, y, z) if wg.vox.density.shape[0] > 0 else -1
-            if cell < 0:
+            if cell < 0 and (k != SUPPORTING or wg.vox.density.shape[0] > 0):
                 cell, x, y, z = vacuum_flight(wg, x, y, z, u, v, w, max(t_min, 0.0))
         else:
             out, cell, x, y, z, tau = flight_voxel(wg, xs, e, cell - m_tets, x, y, z, u, v, w,

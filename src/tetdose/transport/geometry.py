@@ -2,7 +2,8 @@
 
 Per tet: the four face planes (outward unit normal n_f, offset c_f = n_f·a for a vertex a of the
 face), the packed neighbour link ``4·k' + f'`` (k' the tet across face f, f' the same face's
-index in k'), the linear density ρ(x) = ∇ρ·x + c solved from the four vertex densities, and the
+index in k'; −1 on the boundary, :data:`SUPPORTING` on a boundary face no photon can come back
+through), the linear density ρ(x) = ∇ρ·x + c solved from the four vertex densities, and the
 material. Boundary faces (corner, two edges, outward normal) go into a uniform grid (CSR) for
 the entry ray cast.
 
@@ -23,7 +24,7 @@ import numpy as np
 from tetdose._typing import FloatArray, IntArray
 from tetdose.errors import MeshError
 from tetdose.mesh import FACE_VERTICES, TetMesh
-from tetdose.transport._geometry_tet import TetGeometry
+from tetdose.transport._geometry_tet import SUPPORTING, TetGeometry
 
 _MORTON_BITS = 21
 
@@ -70,6 +71,23 @@ def _boundary_grid(points: FloatArray, tri: IntArray) -> tuple[FloatArray, ...]:
     return lo, cell, n, start, f[order].astype(np.intp)
 
 
+def supporting_faces(points_mm: FloatArray, planes: FloatArray) -> np.ndarray:
+    """Boolean per face plane (F, 4: outward unit normal, offset): every point lies behind it
+    (up to 1e-9 of the mesh's extent). Tested against the convex hull's vertices only."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    try:
+        hull = points_mm[ConvexHull(points_mm).vertices]
+    except QhullError:  # flat or degenerate point sets: test every point
+        hull = points_mm
+    tol = 1e-9 * max(float(np.ptp(points_mm, axis=0).max()), 1.0)
+    out = np.empty(len(planes), dtype=bool)
+    for lo in range(0, len(planes), 4096):
+        pl = planes[lo:lo + 4096]
+        out[lo:lo + 4096] = (hull @ pl[:, :3].T - pl[:, 3]).max(axis=0) <= tol
+    return out
+
+
 def mesh_geometry(mesh: TetMesh, density_g_cm3: FloatArray, material: IntArray,
                   order: IntArray | None = None,
                   to_frame: Callable[[FloatArray], FloatArray] | None = None) -> TetGeometry:
@@ -107,6 +125,8 @@ def mesh_geometry(mesh: TetMesh, density_g_cm3: FloatArray, material: IntArray,
     face_back = np.argmax(mesh.neighbors[nb[k, f]] == order[k][:, None], axis=1)
     link[k, f] = 4 * inv[nb[k, f]] + face_back
     bk, bf = np.nonzero(nb < 0)
+    sup = supporting_faces(pts, planes[bk, bf])
+    link[bk[sup], bf[sup]] = SUPPORTING
     tri = tets[bk[:, None], FACE_VERTICES[bf]]
     corner = pts[tri[:, 0]]
     bnd_tri = np.stack([corner, pts[tri[:, 1]] - corner, pts[tri[:, 2]] - corner,
