@@ -19,6 +19,7 @@ import numpy as np
 from scipy import ndimage
 
 from tetdose._typing import FloatArray, IntArray
+from tetdose.body import largest_component
 from tetdose.errors import ImageError
 
 #: More distinct values than this, or any negative value: the image is a CT, not labels.
@@ -79,13 +80,7 @@ def default_sizes_mm(volumes_mm3: Mapping[int, float], depths_mm: Mapping[int, f
 
 def body_mask(ct_hu: np.ndarray, threshold_hu: float = BODY_THRESHOLD_HU) -> np.ndarray:
     """Patient outline: largest 6-connected component of HU > threshold, holes filled."""
-    mask = np.asarray(ct_hu) > threshold_hu
-    comp, n = ndimage.label(mask)
-    if n == 0:
-        raise ImageError(f"no CT voxel is above {threshold_hu:g} HU; is this a CT in HU?")
-    sizes = np.bincount(comp.ravel())
-    sizes[0] = 0
-    body = comp == int(np.argmax(sizes))
+    body = largest_component(np.asarray(ct_hu) > threshold_hu, f"{threshold_hu:g} HU")
     for k in range(body.shape[0]):
         body[k] = ndimage.binary_fill_holes(body[k])
     return ndimage.binary_fill_holes(body)

@@ -38,6 +38,7 @@ from typing import NamedTuple
 import numpy as np
 from tqdm import tqdm
 
+from tetdose.body import largest_component
 from tetdose.errors import ImageError
 from tetdose.image import Image
 from tetdose.motion.dvf import DisplacementField
@@ -141,12 +142,7 @@ def body_mask(ct_hu: Image, threshold_hu: float = BODY_THRESHOLD_HU) -> np.ndarr
 
     step = max(1, int(BODY_MASK_PIXEL_MM // float(min(ct_hu.grid.spacing_mm[:2]))))
     above = np.asarray(ct_hu.array)[:, ::step, ::step] > threshold_hu
-    labels, n = ndimage.label(above)
-    if n == 0:
-        raise ImageError(f"no voxel above {threshold_hu:g} HU: the CT holds no body; give a mask")
-    sizes = np.bincount(labels.ravel())
-    sizes[0] = 0
-    body = labels == int(np.argmax(sizes))
+    body = largest_component(above, f"{threshold_hu:g} HU")
     ny, nx = body.shape[1:]
     jj, ii = np.mgrid[0:ny, 0:nx]
     pix = np.stack([ii.ravel(), jj.ravel()], axis=1).astype(np.float64)
