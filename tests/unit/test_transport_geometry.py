@@ -299,3 +299,34 @@ def test_supporting_faces_of_a_box_and_of_a_u():
     assert notch_floor.any() and np.all(gu.link[k[notch_floor], f[notch_floor]] == -1)
     outer_bottom = (np.abs(normal_z + 1.0) < 1e-9)
     assert np.all(gu.link[k[outer_bottom], f[outer_bottom]] == SUPPORTING)
+
+
+def test_every_voxel_a_boundary_triangle_crosses_lists_it():
+    """Points sampled on every boundary triangle (a jittered mesh in a rotated grid) lie in
+    voxels whose lists hold that triangle, and exactly the listed voxels are flagged."""
+    from tetdose.transport.world import World, world_arrays
+
+    c, s = np.cos(0.4), np.sin(0.4)
+    rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    grid = ImageGrid(rot @ [-45.0, -45.0, -10.0], np.array([3.0, 4.0, 5.0]), rot, (30, 25, 16))
+    mesh = box_mesh((3, 3, 3), (30.0, 30.0, 30.0), origin_mm=(-15.0, -15.0, 0.0), jitter=0.25)
+    mesh = mesh.with_data(point_data={"density": np.ones(mesh.n_points)})
+    density = Image(np.ones(grid.shape), grid)
+    arr = world_arrays(World(mesh=mesh, density=density),
+                       lambda rho, region: (np.zeros(len(rho), np.intp), ["water"]))
+    wg = arr.geometry
+    rng = np.random.default_rng(3)
+    tri = wg.tet.bnd_tri
+    lo, cell, n = wg.vox.lo, wg.vox.cell, wg.vox.n
+    for b in range(len(tri)):
+        w = rng.dirichlet(np.ones(3), 40)
+        pts = tri[b, 0] + w[:, 1:2] * tri[b, 1] + w[:, 2:3] * tri[b, 2]  # grid frame
+        ijk = np.floor((pts - lo) / cell).astype(int)
+        assert np.all((ijk >= 0) & (ijk < n))  # the mesh lies inside the grid
+        for i, j, k in ijk:
+            li, lj, lk = np.array([i, j, k]) - wg.tri_lo
+            cidx = (lk * wg.tri_n[1] + lj) * wg.tri_n[0] + li
+            assert b in wg.tri_items[wg.tri_start[cidx]:wg.tri_start[cidx + 1]]
+            assert wg.vox.material[(k * n[1] + j) * n[0] + i] < 0  # flagged: −m − 1
+    listed = np.diff(wg.tri_start) > 0
+    assert (wg.vox.material < 0).sum() == listed.sum()

@@ -25,7 +25,8 @@ class VoxelGeometry(NamedTuple):
     cell: FloatArray  # (3,) voxel size [mm]
     n: IntArray  # (3,) voxels per axis (nx, ny, nz)
     density: FloatArray  # (nx·ny·nz,) density per flat voxel id [g/cm³]
-    material: IntArray  # (nx·ny·nz,) material index per flat voxel id
+    material: IntArray  # (nx·ny·nz,) material index m per flat voxel id; −m − 1 where the voxel
+    #                     lists mesh triangles (hybrid worlds, :mod:`._geometry_world`)
 
 
 @kernel

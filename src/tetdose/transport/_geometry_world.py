@@ -8,7 +8,8 @@ Inside the mesh the mesh is the only truth; outside it, the voxels. A voxel cut 
 surface is traversed as a voxel only up to the surface: each voxel of the mesh's bounding box
 lists the boundary triangles whose bounding box (grown by :data:`LIST_PAD_MM`) touches it (CSR,
 built by :mod:`tetdose.transport.world`), and the voxel flight tests those triangles
-(Möller–Trumbore) on the stretch of the ray inside the voxel. The first *entering* hit
+(Möller–Trumbore) on the stretch of the ray inside the voxel; such voxels carry their material
+index m as −m − 1, so the flight knows without a second load per step. The first *entering* hit
 (n·d < 0) hands the photon to the owner tet at the exact hit point. A photon leaving the mesh
 continues in the voxel holding its exit point or, outside the grid, flies through vacuum to
 whichever comes first: the mesh's next entering face (:func:`~._geometry_tet.first_boundary_hit`)
@@ -85,11 +86,13 @@ def mesh_hit_in_voxel(wg, i, j, k, x, y, z, u, v, w, t_lo, t_hi):
 
 @kernel
 def cell_material(wg, cell):
-    """Material index of a global cell (tet or ``M + voxel id``)."""
+    """Material index of a global cell (tet or ``M + voxel id``; a voxel listing triangles holds
+    −m − 1)."""
     m = wg.tet.planes.shape[0]
     if cell < m:
         return wg.tet.material[cell]
-    return wg.vox.material[cell - m]
+    mv = wg.vox.material[cell - m]
+    return mv if mv >= 0 else -mv - 1
 
 
 @kernel
@@ -148,10 +151,9 @@ def start_cell(wg, x, y, z, u, v, w):
                                      z + t * w, -u, -v, -w, t)
                 if k >= 0:
                     return k, x, y, z, n_reloc
-    if wg.vox.density.shape[0] > 0:
-        cell = voxel_cell_at(wg, x, y, z)
-        if cell >= 0:
-            return cell, x, y, z, 0
+    cell = voxel_cell_at(wg, x, y, z)
+    if cell >= 0:
+        return cell, x, y, z, 0
     cell, x, y, z = vacuum_flight(wg, x, y, z, u, v, w, -BARY_TOL)
     return cell, x, y, z, 0
 

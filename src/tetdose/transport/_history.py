@@ -138,7 +138,6 @@ def flight_voxel(wg, xs, e, vid, x, y, z, u, v, w, tau, t_min, track, tally, cou
     g = wg.vox
     off = wg.tet.planes.shape[0]
     nx, ny = g.n[0], g.n[1]
-    lists = wg.tri_n[0] > 0
     i, j, k = voxel_ijk(g, vid)
     sx, sy, sz, tx, ty, tz, dx, dy, dz = dda_init(g, i, j, k, x, y, z, u, v, w)
     t_cur = 0.0
@@ -148,12 +147,15 @@ def flight_voxel(wg, xs, e, vid, x, y, z, u, v, w, tau, t_min, track, tally, cou
     while True:
         vid = (k * ny + j) * nx + i
         m = g.material[vid]
+        listed = m < 0  # the voxel lists mesh triangles (material stored as −m − 1)
+        if listed:
+            m = -m - 1
         if m != m_prev:
             mu, mu_en = transport_coefficients(xs, m, e)
             m_prev = m
         t_end = min(tx, ty, tz)
         b = -1
-        if lists:
+        if listed:
             b, t_hit = mesh_hit_in_voxel(wg, i, j, k, x, y, z, u, v, w,
                                          max(t_cur - HIT_TOL_MM, t_min), t_end)
             if b >= 0:
