@@ -34,6 +34,7 @@ from tetdose._constants import MM3_PER_CM3
 from tetdose._typing import FloatArray
 from tetdose.errors import MeshError, TetdoseError
 from tetdose.mapping.solve import (
+    SOLVERS,
     lumped_mass_mm3,
     p1_mass_matrix_mm3,
     project_l2,
@@ -43,7 +44,8 @@ from tetdose.mapping.solve import (
 from tetdose.mesh import TetMesh
 from tetdose.motion.phases import DENSITY, PhaseSeries
 
-METHODS = ("l2", "lsq")
+#: Density update methods: the mapping's solvers (one spelling, :data:`tetdose.mapping.solve.SOLVERS`).
+METHODS = SOLVERS
 
 
 @dataclass(frozen=True)
