@@ -196,3 +196,15 @@ def save(ds: Dataset, path: Path, sop_class_uid: str, sop_instance_uid: str) -> 
     meta.TransferSyntaxUID = ExplicitVRLittleEndian
     ds.file_meta = meta
     ds.save_as(path, enforce_file_format=True)
+
+
+def rt_general_plan(ds: Dataset, ctx: StudyContext, label: str, name: str) -> None:
+    """RT General Plan (C.8.8.9) and RT Approval (C.8.8.16) attributes of a tetdose plan: dated
+    as the study, geometry TREATMENT_DEVICE (PATIENT needs a referenced RT Structure Set),
+    UNAPPROVED."""
+    ds.RTPlanLabel = label
+    ds.RTPlanName = name
+    ds.RTPlanDate = ctx.attributes.get("StudyDate", "") or ""
+    ds.RTPlanTime = ctx.attributes.get("StudyTime", "") or ""
+    ds.RTPlanGeometry = "TREATMENT_DEVICE"
+    ds.ApprovalStatus = "UNAPPROVED"

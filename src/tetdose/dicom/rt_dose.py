@@ -38,6 +38,7 @@ from tetdose._atomic import atomic_write_file
 from tetdose.dicom._modules import (
     StudyContext,
     ds_values,
+    rt_general_plan,
     save,
     set_equipment,
     set_image_plane,
@@ -216,11 +217,6 @@ def _write_plan_stub(path: Path, ctx: StudyContext, plan_uid: str, number: int) 
     series_uid = derive_uid(plan_uid, "plan-series", prefix=ctx.uid_prefix)
     ds = _series_base(ctx, "RTPLAN", series_uid, number, "tetdose plan placeholder")
     ds.InstanceNumber = 1
-    ds.RTPlanLabel = "tetdose MC"
-    ds.RTPlanName = "tetdose Monte Carlo"
+    rt_general_plan(ds, ctx, "tetdose MC", "tetdose Monte Carlo")
     ds.RTPlanDescription = "placeholder for a plan.toml dose calculation; not deliverable"
-    ds.RTPlanDate = ctx.attributes.get("StudyDate", "") or ""
-    ds.RTPlanTime = ctx.attributes.get("StudyTime", "") or ""
-    ds.RTPlanGeometry = "TREATMENT_DEVICE"
-    ds.ApprovalStatus = "UNAPPROVED"
     save(ds, path, RTPlanStorage, plan_uid)

@@ -30,7 +30,13 @@ from pydicom.errors import InvalidDicomError
 from pydicom.uid import RTPlanStorage
 
 from tetdose._atomic import atomic_write_file
-from tetdose.dicom._modules import StudyContext, save, set_equipment, study_context
+from tetdose.dicom._modules import (
+    StudyContext,
+    rt_general_plan,
+    save,
+    set_equipment,
+    study_context,
+)
 from tetdose.dicom.uid import DEFAULT_PREFIX, derive_uid
 from tetdose.errors import DicomError, PlanError
 from tetdose.transport.beams import MLC, ControlPoint, LinacBeam
@@ -73,12 +79,7 @@ def plan_dataset(plan: Plan, ctx: StudyContext, plan_uid: str, number: int) -> D
     ds.OperatorsName = ""
     set_equipment(ds)
     ds.InstanceNumber = 1
-    ds.RTPlanLabel = "tetdose"
-    ds.RTPlanName = "tetdose linac beams"
-    ds.RTPlanDate = ctx.attributes.get("StudyDate", "") or ""
-    ds.RTPlanTime = ctx.attributes.get("StudyTime", "") or ""
-    ds.RTPlanGeometry = "TREATMENT_DEVICE"
-    ds.ApprovalStatus = "UNAPPROVED"
+    rt_general_plan(ds, ctx, "tetdose", "tetdose linac beams")
     positions = sorted({b.patient_position for b in plan.treatment_beams})
     ds.PatientSetupSequence = [_item(PatientPosition=p, PatientSetupNumber=i + 1,
                                      SetupTechnique="ISOCENTRIC")
