@@ -1,11 +1,11 @@
 """The real-patient study on the real thorax CT in ../shared/data, through the CLI as a user runs
 it: the lung (the part that moves) meshed from its mask, the rest of the body CT voxels.
 
-``tetdose map`` → ``deform --breathing`` → ``dose4d --like CT`` (every phase in the hybrid world,
-the voxel-only reference on the same body) → ``compare``. Checked: no photon lost, the ledger
-closes, the organ mesh's dose agrees with the voxel engine's inside the mesh at matched
-resolution on the static phase, the combined accumulated dose covers the body, and ``compare``
-names the region it evaluated. ``slow``: run by ``make validate``.
+``tetdose mesh`` (organ-shaped, MMG) → ``map`` → ``deform --breathing`` → ``dose4d --like CT``
+(every phase in the hybrid world, the voxel-only reference on the same body) → ``compare``.
+Checked: no photon lost, the ledger closes, the organ mesh's dose agrees with the voxel
+engine's inside the mesh at matched resolution on the static phase, the combined accumulated
+dose covers the body, and ``compare`` names the region it evaluated. ``slow``: run by ``make validate``.
 """
 
 from __future__ import annotations
@@ -20,9 +20,8 @@ from test_real_ct import LUNG_CT, LUNG_MASK, _need, resample_labels
 from tetdose.cli import main
 from tetdose.compare.gamma import gamma_index
 from tetdose.image import Image
-from tetdose.io import read_image, read_mesh, write_image, write_mesh
+from tetdose.io import read_image, read_mesh, write_image
 from tetdose.mapping.overlap import compute_overlap
-from tetdose.phantoms import mesh_labels
 from tetdose.transfer import grid_dose_to_mesh, mesh_dose_to_grid
 
 pytestmark = pytest.mark.slow
@@ -43,10 +42,11 @@ def test_real_thorax_lung_mesh_inside_the_ct(tmp_path):
     mask = resample_labels(read_image(LUNG_MASK), ct.grid)
     labels = Image((np.asarray(mask.array) > 0).astype(np.uint8), ct.grid)
     write_image(tmp_path / "labels.nrrd", labels)
-    write_mesh(tmp_path / "lung.vtu", mesh_labels(labels, [1], 10.0))
     (tmp_path / "plan.toml").write_text(
         "[regions]\nlung = 1\n" + "".join(BEAM.format(g=g) for g in (0.0, 120.0, 240.0)))
-    run = [["map", "--ct", str(LUNG_CT), "--mesh", str(tmp_path / "lung.vtu"),
+    run = [["mesh", "--labels", str(tmp_path / "labels.nrrd"), "--label", "1",
+            "-o", str(tmp_path / "lung.vtu")],
+           ["map", "--ct", str(LUNG_CT), "--mesh", str(tmp_path / "lung.vtu"),
             "-o", str(tmp_path / "mapped.vtu")],
            ["deform", "--mesh", str(tmp_path / "mapped.vtu"), "--breathing", "--n-phases", "3",
             "-o", str(tmp_path / "phases")],

@@ -126,6 +126,7 @@ def preflight(job: TransportJob, xs: CrossSections, settings: TransportSettings,
     """
     n = min(settings.n_histories, PILOT_HISTORIES)
     pilot = replace(settings, n_histories=n, n_batches=2)
+    run_batches(job, xs, replace(pilot, n_histories=2), 0, 2)  # compile / load, not timed
     t0 = time.perf_counter()
     _, _, counts = run_batches(job, xs, pilot, 0, 2)
     seconds = time.perf_counter() - t0
