@@ -18,7 +18,8 @@ from tetdose.image import Image, ImageGrid
 from tetdose.mesh import TetMesh
 from tetdose.transport import mesh_geometry, morton_order
 from tetdose.transport._geometry_tet import enter_mesh, exit_face
-from tetdose.transport._geometry_voxel import VoxelGeometry, enter_grid, voxel_index
+from tetdose.transport._geometry_voxel import VoxelGeometry
+from tetdose.transport._geometry_world import start_cell
 from tetdose.transport._history import C_CROSSINGS, ESCAPES, N_COUNTS, flight_mesh, flight_voxel
 from tetdose.transport._physics import transport_coefficients
 from tetdose.transport.world import voxel_world
@@ -205,15 +206,14 @@ def test_voxel_traversal_matches_brute_force(xs):
         if trial < 4:  # axis-parallel rays (zero direction components)
             p, d = np.array([-3.0, 2.5 + 0.7 * trial, 0.75]), np.array([1.0, 0.0, 0.0])
         d /= np.linalg.norm(d)
-        inside, x, y, z = enter_grid(g, *p, *d)
+        wg = voxel_world(g)
+        vid, x, y, z, _ = start_cell(wg, *p, *d)  # no mesh: cell = voxel id, −1 if it misses
         ref = _reference_voxel_columns(lo, cell, n, rho, p, d)
-        if not inside:
+        if vid < 0:
             assert ref.sum() == pytest.approx(0.0, abs=1e-9)
             continue
         tally = np.zeros(grid.n_voxels)
-        i, j, k = voxel_index(g, x, y, z)
-        vid = (k * n[1] + j) * n[0] + i
-        out, *_ = flight_voxel(voxel_world(g), xs, 1.0, vid, x, y, z, *d, 1e300, -1e-9, True,
+        out, *_ = flight_voxel(wg, xs, 1.0, vid, x, y, z, *d, 1e300, -1e-9, True,
                                tally, np.zeros(N_COUNTS, np.int64))
         assert out == ESCAPES
         np.testing.assert_allclose(tally * MM_PER_CM / mu_en, ref, atol=1e-9)

@@ -28,7 +28,8 @@ from tetdose.transport import (
     simulate,
 )
 from tetdose.transport._geometry_tet import enter_mesh
-from tetdose.transport._geometry_voxel import VoxelGeometry, enter_grid, voxel_index
+from tetdose.transport._geometry_voxel import VoxelGeometry
+from tetdose.transport._geometry_world import start_cell
 from tetdose.transport._history import ESCAPES, INTERACTS, N_COUNTS, flight_mesh, flight_voxel
 from tetdose.transport._physics import transport_coefficients
 from tetdose.transport.world import voxel_world
@@ -105,10 +106,9 @@ def test_uncollided_fraction_is_exp_minus_mu_l(xs, geometry):
         g = VoxelGeometry(-0.5 * grid.spacing_mm, grid.spacing_mm, np.array(n, np.intp),
                           np.ones(grid.n_voxels), np.zeros(grid.n_voxels, np.intp))
         q = grid.to_grid_frame(np.array([0.1, 0.2, -10.0]))
-        _, x, y, z = enter_grid(g, *q, 0.0, 0.0, 1.0)
+        wg = voxel_world(g)
+        vid, x, y, z, _ = start_cell(wg, *q, 0.0, 0.0, 1.0)  # no mesh: cell = voxel id
         tally, counts = np.zeros(grid.n_voxels), np.zeros(N_COUNTS, np.int64)
-        i, j, kk = voxel_index(g, x, y, z)
-        wg, vid = voxel_world(g), (kk * n[1] + j) * n[0] + i
 
         def flight(tau):
             o, _, _, _, zz, _ = flight_voxel(wg, xs, 1.0, vid, x, y, z, 0, 0, 1.0, tau, -1e-9,

@@ -5,8 +5,8 @@ Grid frame: q = Dᵀ(p − origin) [mm]; voxel (i, j, k) spans ``lo + (i, j, k)�
 ``lo + (i+1, j+1, k+1)·cell`` with ``lo = −spacing/2``. Along a ray q + t·d the next boundary
 crossing on axis a is at ``t_max[a]`` and successive crossings are ``t_delta[a] = cell_a/|d_a|``
 apart; the walk steps the axis with the smallest ``t_max`` (ties: lowest axis, then the other
-axis follows with a zero-length step). Entry into the grid uses the slab method
-(Kay & Kajiya 1986).
+axis follows with a zero-length step). The ray–box interval (entry into the grid from
+vacuum) uses the slab method (Kay & Kajiya 1986).
 """
 
 from typing import NamedTuple
@@ -55,16 +55,6 @@ def voxel_index(g, x, y, z):
     j = min(max(int(np.floor((y - g.lo[1]) / g.cell[1])), 0), g.n[1] - 1)
     k = min(max(int(np.floor((z - g.lo[2]) / g.cell[2])), 0), g.n[2] - 1)
     return i, j, k
-
-
-@kernel
-def enter_grid(g, x, y, z, u, v, w):
-    """Start of a source ray: (inside?, x, y, z) moved to the grid if it starts outside."""
-    t0, t1 = box_interval(g.lo, g.cell, g.n, x, y, z, u, v, w)
-    if t0 > t1 or t1 < 0.0:
-        return False, x, y, z
-    t = max(t0, 0.0)
-    return True, x + t * u, y + t * v, z + t * w
 
 
 @kernel
