@@ -171,7 +171,13 @@ def scaled_result(result: DoseResult, scale: float, rx: Prescription) -> DoseRes
 
 def prescribe_result(result: DoseResult, plan: Any, geometry: Any,  # noqa: ANN401
                      labels: Any = None) -> DoseResult:
-    """One run prescribed by ``plan.prescription`` (unchanged without one)."""
+    """One run prescribed by ``plan.prescription`` or calibrated by ``plan.calibration``
+    (gy_per_mu, :mod:`tetdose.mu_calibration`); unchanged without either."""
+    if getattr(plan, "calibration", None) is not None:
+        from tetdose.mu_calibration import calibration_scale
+
+        scale, rec = calibration_scale(plan)
+        return replace(result.with_extra(**rec), particles=result.particles * scale)
     rx = plan.prescription
     if rx is None:
         return result.with_extra(units={"dose": PER_PHOTON_UNIT})
@@ -181,23 +187,34 @@ def prescribe_result(result: DoseResult, plan: Any, geometry: Any,  # noqa: ANN4
 
 def prescribe_dose4d(d4: Dose4D, plan: Any) -> Dose4D:  # noqa: ANN401
     """Every phase and accumulation of ``d4`` scaled by one factor, fixed on the accumulated
-    mesh dose of the prescription structure (unchanged without a prescription)."""
+    mesh dose of the prescription structure (unchanged without a prescription). With
+    ``plan.calibration`` (gy_per_mu) the factor comes from the meterset instead."""
     rx = plan.prescription
-    if rx is None:
-        return d4
-    ref = d4.series.reference
-    mask = region_cells(ref, None, region_label(rx.structure, plan.regions))
     acc = d4.accumulated
-    s = scale_for(rx, acc.dose_gy, acc.mass_g, mask)
+    if getattr(plan, "calibration", None) is not None:
+        from tetdose.mu_calibration import calibration_scale
+
+        s, rec = calibration_scale(plan)
+    elif rx is None:
+        return d4
+    else:
+        ref = d4.series.reference
+        mask = region_cells(ref, None, region_label(rx.structure, plan.regions))
+        s = scale_for(rx, acc.dose_gy, acc.mass_g, mask)
+        rec = record(rx, s)
     acc = replace(acc, dose_gy=acc.dose_gy * s,
                   dose_std_gy=None if acc.dose_std_gy is None else acc.dose_std_gy * s)
     voxel = d4.voxel
     if voxel is not None:
         voxel = replace(_scaled_images(voxel, s),
-                        results=[scaled_result(r, s, rx) for r in voxel.results])
+                        results=[_scaled(r, s, rec) for r in voxel.results])
     parts = {"body": _scaled_images(d4.body, s)} if getattr(d4, "body", None) else {}
-    return replace(d4, results=[scaled_result(r, s, rx) for r in d4.results], accumulated=acc,
+    return replace(d4, results=[_scaled(r, s, rec) for r in d4.results], accumulated=acc,
                    voxel=voxel, **parts)
+
+
+def _scaled(result: DoseResult, scale: float, rec: dict[str, Any]) -> DoseResult:
+    return replace(result.with_extra(**rec), particles=result.particles * scale)
 
 
 #: Dose images of the 4D results (voxel way, hybrid body part) that a prescription scales.

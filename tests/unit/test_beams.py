@@ -125,16 +125,19 @@ def test_sampled_photons_start_at_the_source_and_cross_the_isocentre_plane_in_th
     assert set(np.round(s[:, 0], 4)) == set(CO60_LINES_MEV)
 
 
-def test_segments_are_chosen_by_meterset_and_rectangles_by_area():
+def test_segments_are_chosen_by_meterset_times_area_and_rectangles_by_area():
+    """Equal fluence per MU: 3 MU through 600 mm² (two leaf pairs) against 1 MU through the
+    default 100 × 100 mm² field: photons in proportion 3·600 : 1·10000."""
     mlc = {"boundaries_mm": [-20, 0, 20], "positions_mm": [-20, -5, -10, 15]}
     plan = Plan.from_dict({"beam": [
         {"type": "linac", "spectrum": "6MV", "isocenter_mm": [0, 0, 0], "weight": 3.0,
          "jaws_mm": [-40, 40, -20, 20], "mlc": mlc},
         {"type": "linac", "spectrum": "6MV", "isocenter_mm": [0, 0, 0], "gantry_deg": 180,
          "weight": 1.0}]})
-    s = _samples(plan, 4000)
+    s = _samples(plan, 12000)
     from_front = s[:, 5] > 0  # gantry 0 travels +y
-    assert abs(from_front.mean() - 0.75) < 4 * np.sqrt(0.75 * 0.25 / len(s))
+    q = 3 * 600 / (3 * 600 + 1 * 10000)
+    assert abs(from_front.mean() - q) < 4 * np.sqrt(q * (1 - q) / len(s))
     f = s[from_front]
     t = 1000.0 / f[:, 5]
     x, z = f[:, 1] + t * f[:, 4], f[:, 3] + t * f[:, 6]
@@ -196,3 +199,26 @@ def test_build_up_mask_is_the_skin_layer_of_depth_dmax():
     core[15:25, 15:25, 15:25] = True
     assert build_up_fraction(mask, core) == 0.0
     assert build_up_fraction(mask, rho > 0) == pytest.approx(1 - (16 / 30) ** 3)
+
+
+def test_co60_with_capsule_scatter_keeps_its_lines_and_its_scattered_third():
+    """rogers_co60.csv (counts per bin from 0.01 MeV divided by the bin width): the two line
+    bins hold 0.53814 each of 1.6137 in total (EGSnrc co60.spectrum), so a third of the
+    photons are scattered; no line lies below the spectrum's 0.01 MeV (empty first bin)."""
+    e, w = named_spectrum("Co60-scatter")
+    assert e.min() > 0.01 and e.max() < 1.3325 + 0.005
+    line = (np.abs(e - 1.17) < 0.006) | (np.abs(e - 1.33) < 0.006)
+    assert w[line].sum() / w.sum() == pytest.approx(2 * 0.53814 / 1.6136762, rel=1e-4)
+    assert np.dot(e, w) / w.sum() < np.mean(CO60_LINES_MEV)  # softer than the bare lines
+
+
+def test_linac_beam_takes_a_spectrum_file_relative_to_the_plan(tmp_path):
+    (tmp_path / "my18.csv").write_text("energy_mev,weight\n2.0,3.0\n8.0,1.0\n")
+    (tmp_path / "plan.toml").write_text(
+        '[[beam]]\ntype = "linac"\nspectrum = "my18.csv"\nisocenter_mm = [0, 0, 0]\n')
+    beam = Plan.from_toml(tmp_path / "plan.toml").treatment_beams[0]
+    np.testing.assert_allclose(beam.energies_mev, [2.0, 8.0])
+    np.testing.assert_allclose(beam.line_weights, [3.0, 1.0])
+    with pytest.raises(PlanError, match="cannot read spectrum"):
+        Plan.from_dict({"beam": [{"type": "linac", "spectrum": "none.csv",
+                                  "isocenter_mm": [0, 0, 0]}]})

@@ -63,6 +63,17 @@ def test_round_trip_gives_the_same_beams(tmp_path):
         assert s.weight == pytest.approx(t.weight)
 
 
+def _area(seg):
+    """Open area [mm²] of a segment: jaws ∩ each leaf pair, by hand."""
+    x1, x2, y1, y2 = seg.jaws_mm
+    if seg.mlc is None:
+        return (x2 - x1) * (y2 - y1)
+    b, p = seg.mlc.boundaries_mm, seg.mlc.positions_mm
+    n = len(b) - 1
+    return sum(max(0.0, min(x2, p[n + i]) - max(x1, p[i]))
+               * max(0.0, min(y2, b[i + 1]) - max(y1, b[i])) for i in range(n))
+
+
 def _inside(rects, a1, a2, tol=1e-9):
     return bool(np.any((rects[:, 0] - tol <= a1) & (a1 <= rects[:, 1] + tol)
                        & (rects[:, 2] - tol <= a2) & (a2 <= rects[:, 3] + tol)))
@@ -70,8 +81,9 @@ def _inside(rects, a1, a2, tol=1e-9):
 
 def test_sampled_sources_match_the_control_points(tmp_path):
     """Exact geometry: every sampled photon starts at iso + SAD·Z_b of its beam's control points
-    and crosses the isocentre plane inside their jaws ∩ MLC; beams are drawn in proportion to
-    their meterset. (The step-and-shoot segments share one source position: their union.)"""
+    and crosses the isocentre plane inside their jaws ∩ MLC; segments are drawn in proportion to
+    meterset × open area / SAD² (equal fluence per MU). (The step-and-shoot segments share one
+    source position: their union.)"""
     back = Plan.from_rt_plan(write_rt_plan(_plan(), tmp_path / "plan.dcm"))
     src = source_arrays(back, TransportSettings(n_histories=10, n_batches=2))
     expected = []  # per beam: source position, axes, sad, union of segment apertures, MU share
@@ -79,8 +91,14 @@ def test_sampled_sources_match_the_control_points(tmp_path):
         seg = beam.segments[0]
         ax = beam_axes(seg.gantry_deg, seg.collimator_deg, seg.couch_deg, beam.patient_position)
         rects = np.concatenate([aperture_rectangles(s.jaws_mm, s.mlc) for s in beam.segments])
-        expected.append((np.asarray(ISO) + beam.sad_mm * ax[2], ax, beam.sad_mm, rects,
-                         beam.meterset / 230.0))
+        total = sum(s.meterset_fraction for s in beam.segments)
+        mu_area = sum(s.meterset_fraction / total * beam.meterset * _area(s)
+                      for s in beam.segments)
+        expected.append([np.asarray(ISO) + beam.sad_mm * ax[2], ax, beam.sad_mm, rects,
+                         mu_area / beam.sad_mm**2])
+    norm = sum(e[4] for e in expected)
+    for e in expected:
+        e[4] /= norm
     n = 6000
     counts = np.zeros(3)
     for i in range(n):

@@ -44,7 +44,8 @@ from tetdose.transport.beams import MLC, ControlPoint, LinacBeam
 if TYPE_CHECKING:  # the model reads RT Plans (Plan.from_rt_plan): no runtime import back
     from tetdose.transport.model import Plan
 
-_NOMINAL_MV = {"Co60": 1.25, "6MV": 6.0, "10MV": 10.0, "15MV": 15.0, "18MV": 18.0}
+_NOMINAL_MV = {"Co60": 1.25, "Co60scatter": 1.25, "6MV": 6.0, "10MV": 10.0, "15MV": 15.0,
+               "18MV": 18.0}
 
 
 def write_rt_plan(plan: Plan, path: str | os.PathLike[str], *,
@@ -131,7 +132,7 @@ def _beam_item(b: LinacBeam, number: int, setup: int) -> Dataset:
                  NumberOfControlPoints=len(cps), ReferencedPatientSetupNumber=setup)
     item.BeamLimitingDeviceSequence = devices
     item.ControlPointSequence = cps
-    item.BeamDescription = f"{canonical_name(b.spectrum)} (tetdose spectrum)"
+    item.BeamDescription = f"{canonical_name(b.spectrum) or Path(b.spectrum).name} (tetdose spectrum)"
     return item
 
 
@@ -141,7 +142,9 @@ def _control_point(b: LinacBeam, seg: ControlPoint, index: int, weight: float,
 
     cp = _item(ControlPointIndex=index, CumulativeMetersetWeight=_ds(min(weight, 1.0)))
     if index == 0:
-        cp.NominalBeamEnergy = _ds(_NOMINAL_MV[str(canonical_name(b.spectrum))])
+        # A spectrum file: its highest energy stands for the nominal MV (endpoint).
+        cp.NominalBeamEnergy = _ds(_NOMINAL_MV.get(str(canonical_name(b.spectrum)),
+                                                   round(max(float(e) for e in b.energies_mev), 1)))
         cp.IsocenterPosition = [_ds(v) for v in b.isocenter_mm]
         cp.TableTopEccentricAngle = "0"  # DS
         cp.TableTopPitchAngle = 0.0  # FL

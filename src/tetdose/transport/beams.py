@@ -20,7 +20,8 @@ the patient's left and travels −x. The photon source model: a point source at 
 central axis; each photon aims at a point drawn uniformly over the open aperture on the
 isocentre plane (jaws ∩ MLC, a union of rectangles), so the fluence is uniform on that plane
 (a flattened beam), falls off as (SAD/d)² along rays and is sharp at the geometric field edge
-(no source size, no head scatter, no leaf transmission).
+(no source size, no head scatter, no leaf transmission). Segments and beams are drawn in
+proportion to meterset × aperture solid angle (:func:`fluence_weight`): equal fluence per MU.
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -108,6 +110,25 @@ def aperture_rectangles(jaws_mm: Sequence[float], mlc: MLC | None = None) -> Flo
     return out.reshape(-1, 4)
 
 
+#: Reference aperture: 100 × 100 mm² on the isocentre plane at SAD 1000 mm [mm², mm].
+REFERENCE_FIELD_AREA_MM2 = 100.0 * 100.0
+REFERENCE_SAD_MM = 1000.0
+
+
+def fluence_weight(meterset: float, rects: FloatArray, sad_mm: float) -> float:
+    """Source weight of a segment: ``meterset × (A / SAD²) / (A_ref / SAD_ref²)``.
+
+    A is the open area of ``rects`` on the isocentre plane [mm²], so A/SAD² is (to first order)
+    the aperture's solid angle; A_ref/SAD_ref² that of a 100 × 100 mm² field at 1000 mm. Photons
+    are drawn in proportion to these weights, so every segment gets the same photons per MU per
+    solid angle: the primary fluence per MU at the isocentre plane is the same for every field
+    size (a linac's monitor chamber holds the fluence per MU, not the photons per MU, constant).
+    A 100 × 100 mm² field at SAD 1000 mm has weight = meterset (MU)."""
+    r = np.asarray(rects, dtype=np.float64).reshape(-1, 4)
+    area = float(np.sum((r[:, 1] - r[:, 0]) * (r[:, 3] - r[:, 2])))
+    return meterset * (area / sad_mm**2) / (REFERENCE_FIELD_AREA_MM2 / REFERENCE_SAD_MM**2)
+
+
 @dataclass(frozen=True, eq=False)
 class ControlPoint:
     """One static segment of a beam: angles [deg], jaws [mm] at the isocentre plane, optional
@@ -148,7 +169,8 @@ class LinacBeam:
     line_weights: FloatArray = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
-        from tetdose.transport.spectra import named_spectrum
+        from tetdose.transport.model import read_spectrum
+        from tetdose.transport.spectra import is_named, named_spectrum
 
         iso = np.asarray(self.isocenter_mm, dtype=np.float64).reshape(-1)
         if iso.shape != (3,) or not np.all(np.isfinite(iso)):
@@ -163,25 +185,30 @@ class LinacBeam:
             raise PlanError(f"beam {self.name!r} delivers no meterset (no segment with weight)")
         if not (math.isfinite(self.meterset) and self.meterset > 0.0):
             raise PlanError(f"beam {self.name!r}: meterset must be positive, got {self.meterset}")
-        e, w = named_spectrum(self.spectrum)
+        e, w = (named_spectrum(self.spectrum) if is_named(self.spectrum)
+                else read_spectrum(Path(self.spectrum)))
         for k, v in (("isocenter_mm", iso), ("segments", segs), ("energies_mev", e),
                      ("line_weights", w)):
             object.__setattr__(self, k, v)
 
     def sources(self) -> list:  # list[PhotonSource]
-        """One point source per segment with an open aperture, weighted by its meterset."""
+        """One point source per segment with an open aperture, weighted by its meterset times
+        the solid angle of its aperture (see :func:`fluence_weight`): the same number of photons
+        per MU and per unit of open area, so the fluence per MU on the isocentre plane is the
+        same for every segment and beam (no output factor model)."""
         total = sum(s.meterset_fraction for s in self.segments)
         out = []
         for seg in self.segments:
             rects = aperture_rectangles(seg.jaws_mm, seg.mlc)
             if seg.meterset_fraction <= 0.0 or len(rects) == 0:
                 continue
+            mu = self.meterset * seg.meterset_fraction / total
             xb, _yb, zb = beam_axes(seg.gantry_deg, seg.collimator_deg, seg.couch_deg,
                                     self.patient_position)
             out.append(PhotonSource(
                 "linac", self.isocenter_mm + self.sad_mm * zb, -zb,
                 energies_mev=self.energies_mev, line_weights=self.line_weights,
-                weight=self.meterset * seg.meterset_fraction / total, field_x_direction=xb,
+                weight=fluence_weight(mu, rects, self.sad_mm), field_x_direction=xb,
                 sad_mm=self.sad_mm, aperture_mm=rects))
         if not out:
             raise PlanError(f"beam {self.name!r}: every segment is closed (jaws ∩ MLC empty)")
@@ -192,8 +219,13 @@ _LINAC_KEYS = {"type", "name", "spectrum", "isocenter_mm", "isocenter", "gantry_
                "collimator_deg", "couch_deg", "sad_mm", "jaws_mm", "mlc", "weight"}
 
 
-def linac_beam_from_dict(d: Mapping[str, Any], i: int, patient_position: str) -> LinacBeam:
-    """A ``type = "linac"`` table of plan.toml (see :mod:`tetdose.transport.model`)."""
+def linac_beam_from_dict(d: Mapping[str, Any], i: int, patient_position: str,
+                         base_dir: Path = Path(".")) -> LinacBeam:
+    """A ``type = "linac"`` table of plan.toml (see :mod:`tetdose.transport.model`); a spectrum
+    that is not a named beam quality is a CSV file (energy_mev, weight) relative to
+    ``base_dir`` (the plan file's folder)."""
+    from tetdose.transport.spectra import is_named
+
     where = f"beam {i + 1}"
     unknown = set(d) - _LINAC_KEYS
     if unknown:
@@ -203,7 +235,11 @@ def linac_beam_from_dict(d: Mapping[str, Any], i: int, patient_position: str) ->
         raise PlanError(f"{where}: give exactly one of isocenter_mm = [x, y, z] or "
                         "isocenter = \"structure\"")
     if "spectrum" not in d:
-        raise PlanError(f"{where}: a linac beam needs spectrum = \"6MV\" (or 10MV, 15MV, Co60)")
+        raise PlanError(f"{where}: a linac beam needs spectrum = \"6MV\" (or 10MV, 15MV, Co60, "
+                        "Co60scatter, or a spectrum.csv)")
+    spectrum = str(d["spectrum"])
+    if not is_named(spectrum):
+        spectrum = str(base_dir / spectrum)
     try:
         mlc = d.get("mlc")
         seg = ControlPoint(float(d.get("gantry_deg", 0.0)), float(d.get("collimator_deg", 0.0)),
@@ -212,7 +248,7 @@ def linac_beam_from_dict(d: Mapping[str, Any], i: int, patient_position: str) ->
                            None if mlc is None else MLC(mlc["boundaries_mm"],
                                                         mlc["positions_mm"]))
         region = d.get("isocenter")
-        return LinacBeam(str(d.get("name", f"beam{i + 1}")), str(d["spectrum"]),
+        return LinacBeam(str(d.get("name", f"beam{i + 1}")), spectrum,
                          d.get("isocenter_mm", (0.0, 0.0, 0.0)), (seg,),
                          float(d.get("sad_mm", 1000.0)), patient_position,
                          float(d.get("weight", 1.0)),

@@ -5,8 +5,9 @@ and run settings. Frozen dataclasses validated on construction (errors are :clas
 
     [[beam]]
     type = "point"              # "pencil" | "parallel" | "point" | "linac" (see below)
-    energy_mev = 1.0            # or spectrum = "6MV" | "10MV" | "15MV" | "Co60" (named, see
-                                # transport.spectra) | "spectrum.csv" (columns energy_mev, weight)
+    energy_mev = 1.0            # or spectrum = "6MV" | "10MV" | "15MV" | "Co60" | "Co60scatter"
+                                # (named, see transport.spectra) | "spectrum.csv" (columns
+                                # energy_mev, weight; also for linac beams)
     position_mm = [0.0, 0.0, 0.0]
     direction = [0.0, 0.0, 1.0] # pencil / parallel axis, cone axis
     field_mm = [100.0, 100.0]   # parallel: field size (x along e1, y along e2)
@@ -38,6 +39,8 @@ and run settings. Frozen dataclasses validated on construction (errors are :clas
     dose_gy = 2.0               # per fraction
     metric = "D95"              # "D95" | "D50" | "mean"
     fractions = 30
+    [calibration]               # or: absolute dose from the MU (tetdose.mu_calibration)
+    gy_per_mu = 0.00667         # Gy per MU at 100 mm depth, SSD 1000 mm, 100 × 100 mm²
     # rtplan = "plan.dcm"       # beams of a DICOM RT Plan (tetdose.dicom.rt_plan), added
 
 Field axes: ``e1`` is the unit vector of ``field_x_direction`` (default: the patient axis least
@@ -64,6 +67,7 @@ from tetdose.transport.photon_source import PhotonSource
 from tetdose.transport.spectra import is_named, named_spectrum
 
 if TYPE_CHECKING:
+    from tetdose.mu_calibration import MUCalibration
     from tetdose.prescription import Prescription
 
 #: The one spelling of each dose estimator (`--estimator`); source kinds: SOURCE_KINDS.
@@ -71,7 +75,7 @@ ESTIMATORS = ("analog", "track_length")
 #: Largest tally (n_batches × n_cells × 8 bytes) accepted by default.
 MAX_TALLY_BYTES = 2 * 1024**3
 _SECTIONS = {"beam", "materials", "normalization", "regions", "prescription", "patient",
-             "rtplan"}
+             "rtplan", "calibration"}
 _BEAM_KEYS = {"type", "energy_mev", "spectrum", "position_mm", "direction", "field_mm",
               "half_angle_deg", "weight", "field_x_direction"}
 
@@ -91,6 +95,7 @@ class Plan:
     treatment_beams: tuple[LinacBeam, ...] = ()
     regions: Mapping[str, int] = field(default_factory=dict)
     prescription: Prescription | None = None
+    calibration: MUCalibration | None = None
     sources: tuple[PhotonSource, ...] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -101,6 +106,9 @@ class Plan:
         if not beams and not linacs:
             raise PlanError("a plan needs at least one beam ([[beam]] table in plan.toml, "
                             "or rtplan = \"plan.dcm\")")
+        if self.prescription is not None and self.calibration is not None:
+            raise PlanError("give either [prescription] (scale to a dose in a structure) or "
+                            "[calibration] gy_per_mu (absolute dose from the MU), not both")
         if not (math.isfinite(self.particles) and self.particles > 0):
             raise PlanError(f"normalization particles must be positive, got {self.particles}")
         mats: dict[int, str] = {}
@@ -175,6 +183,7 @@ class Plan:
     @classmethod
     def from_dict(cls, data: Mapping[str, Any], base_dir: Path = Path("."),
                   rtplan: str | os.PathLike[str] | None = None) -> Plan:
+        from tetdose.mu_calibration import MUCalibration
         from tetdose.prescription import Prescription
         from tetdose.transport.beams import linac_beam_from_dict
 
@@ -188,17 +197,18 @@ class Plan:
         position = str(data.get("patient", {}).get("position", "HFS"))
         simple = tuple(_beam_from_dict(b, i, base_dir) for i, b in enumerate(beams)
                        if b.get("type") != "linac")
-        linacs = [linac_beam_from_dict(b, i, position) for i, b in enumerate(beams)
+        linacs = [linac_beam_from_dict(b, i, position, base_dir) for i, b in enumerate(beams)
                   if b.get("type") == "linac"]
         dicom_plans = ([base_dir / str(data["rtplan"])] if "rtplan" in data else []) + (
             [Path(rtplan)] if rtplan is not None else [])
         for dcm in dicom_plans:
             linacs.extend(cls.from_rt_plan(dcm).treatment_beams)
         norm = data.get("normalization", {})
-        rx = data.get("prescription")
+        rx, cal = data.get("prescription"), data.get("calibration")
         return cls(simple, data.get("materials", {}), float(norm.get("particles", 1.0)),
                    tuple(linacs), data.get("regions", {}),
-                   Prescription.from_dict(rx) if rx is not None else None)
+                   Prescription.from_dict(rx) if rx is not None else None,
+                   MUCalibration.from_dict(cal) if cal is not None else None)
 
 
 def _beam_from_dict(d: Mapping[str, Any], i: int, base_dir: Path) -> PhotonSource:

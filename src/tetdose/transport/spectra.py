@@ -6,8 +6,14 @@
   files), shipped in ``tetdose/data/spectra/mohan*.csv`` with that citation in the header.
 - ``"Co60"``: the two ⁶⁰Co γ lines 1.1732 and 1.3325 MeV, equal weights (both ≈ 100 % per
   decay; no capsule or collimator scatter).
-- ``"18MV"``: Mohan et al. computed one, but no tabulation of it is shipped with a citable source
-  here, so it is refused with a message that says how to give a spectrum file instead.
+- ``"Co60scatter"``: a ⁶⁰Co teletherapy beam on the central axis with the photons scattered in
+  the source capsule and the collimators (a third of the photons, 0.05–1.33 MeV): D. W. O.
+  Rogers, G. M. Ewart, A. F. Bielajew, G. van Dyk, "Calculation of electron contamination in a
+  ⁶⁰Co therapy beam", Proc. IAEA Int. Symp. Dosimetry in Radiotherapy, Vol. 1, 303–312 (1988),
+  as distributed with EGSnrc (``co60.spectrum``), shipped in ``rogers_co60.csv``.
+- ``"18MV"``: no tabulation with a citable source was found (Mohan et al. 1985 computed one but
+  EGSnrc distributes only their 4, 6, 10, 15 and 24 MV spectra), so it is refused with a message
+  that says how to give a spectrum file instead.
 
 A histogram bin [e_lo, e_hi] with fluence per MeV φ becomes :data:`LINES_PER_BIN` equal lines at
 the sub-bin midpoints, each of weight φ·(e_hi − e_lo)/LINES_PER_BIN: the bin's fluence and mean
@@ -36,11 +42,12 @@ CO60_LINES_MEV = (1.1732, 1.3325)
 #: Lines per histogram bin of a tabulated spectrum.
 LINES_PER_BIN = 5
 #: Packaged spectrum file per named beam quality.
-_FILES = {"6MV": "mohan6.csv", "10MV": "mohan10.csv", "15MV": "mohan15.csv"}
+_FILES = {"6MV": "mohan6.csv", "10MV": "mohan10.csv", "15MV": "mohan15.csv",
+          "Co60scatter": "rogers_co60.csv"}
 #: Build-up depth d_max in water, 10×10 cm² field [mm] (typical textbook values, see module doc).
-DMAX_MM = {"Co60": 5.0, "6MV": 15.0, "10MV": 25.0, "15MV": 30.0, "18MV": 33.0}
+DMAX_MM = {"Co60": 5.0, "Co60scatter": 5.0, "6MV": 15.0, "10MV": 25.0, "15MV": 30.0, "18MV": 33.0}
 #: Names accepted by :func:`named_spectrum`.
-NAMED_SPECTRA = ("6MV", "10MV", "15MV", "18MV", "Co60")
+NAMED_SPECTRA = ("6MV", "10MV", "15MV", "18MV", "Co60", "Co60scatter")
 
 
 def is_named(name: str) -> bool:
@@ -66,7 +73,8 @@ def named_spectrum(name: str) -> tuple[FloatArray, FloatArray]:
         return np.array(CO60_LINES_MEV), np.ones(2)
     if canon not in _FILES:
         raise PlanError(f"no citable {canon} spectrum is shipped; give spectrum = \"file.csv\" "
-                        "(columns energy_mev, weight) or use 6MV, 10MV, 15MV or Co60")
+                        "(columns energy_mev, weight, e.g. your linac's commissioned spectrum) "
+                        "or use 6MV, 10MV, 15MV, Co60 or Co60scatter")
     return _bins_to_lines(*_read_bins(_FILES[canon]))
 
 
@@ -92,4 +100,5 @@ def _bins_to_lines(e_high_mev: FloatArray, per_mev: FloatArray) -> tuple[FloatAr
     frac = (np.arange(LINES_PER_BIN) + 0.5) / LINES_PER_BIN
     energies = (e_low[:, None] + width[:, None] * frac[None, :]).reshape(-1)
     weights = np.repeat(per_mev * width / LINES_PER_BIN, LINES_PER_BIN)
-    return energies, weights
+    keep = weights > 0.0  # empty bins (e.g. below a spectrum's lowest energy) give no lines
+    return energies[keep], weights[keep]
