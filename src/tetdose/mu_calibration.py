@@ -75,6 +75,7 @@ class MUCalibration:
 
 def plan_weight_and_quality(plan: Any) -> tuple[float, str]:  # noqa: ANN401
     """(ΣW of the plan's linac sources, their one beam quality); refuses other plans."""
+    plan.require_resolved()  # an unresolved isocentre has no sources yet: ΣW would miss it
     if plan.beams:
         raise PlanError("[calibration] gy_per_mu needs linac beams only (MU have no meaning for "
                         "pencil/parallel/point sources); use [prescription] instead")
@@ -140,7 +141,7 @@ def calibration_scale(plan: Any, seed: int = 1) -> tuple[float, dict[str, Any]]:
         raise PlanError("the reference computation scored no dose; raise "
                         "[calibration] reference_histories")
     scale = cal.gy_per_mu * w / d_ref
-    rec = {"calibration": {
+    rec = {"mu_calibration": {
         "gy_per_mu": cal.gy_per_mu, "beam_quality": quality,
         "reference": f"water, SSD {cal.ssd_mm:g} mm, 100 x 100 mm2 at SAD 1000 mm, "
                      f"depth {cal.depth_mm:g} mm on the axis",

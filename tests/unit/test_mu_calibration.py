@@ -82,13 +82,39 @@ def test_reference_conditions_give_gy_per_mu_times_mu():
         r = prescribe_result(r, plan, rho, lab)
         rec = r.record()
         d, s = r.dose_gy[index], r.dose_std_gy[index]
-        s_ref = rec["calibration"]["reference_gy_per_photon_std"] / \
-            rec["calibration"]["reference_gy_per_photon"]
+        s_ref = rec["mu_calibration"]["reference_gy_per_photon_std"] / \
+            rec["mu_calibration"]["reference_gy_per_photon"]
         sigma = 2.0 * np.hypot(s / d, s_ref)
         print(f"plan {k}: D(ref) = {d:.4f} Gy, expected 2 Gy ± {sigma:.4f}")
         assert abs(d - 2.0) < 4 * sigma
         assert sigma < 0.02 * 2.0  # the check is not swamped by noise
         assert rec["units"]["dose"] == "Gy per fraction"
-        assert rec["calibration"]["mu"] == pytest.approx(200.0)
+        assert rec["mu_calibration"]["mu"] == pytest.approx(200.0)
         assert rec["calibration_scale"] == pytest.approx(
-            0.01 * 200.0 / rec["calibration"]["reference_gy_per_photon"])
+            0.01 * 200.0 / rec["mu_calibration"]["reference_gy_per_photon"])
+
+
+def test_cli_dose_record_says_gy_per_fraction_and_keeps_the_calibration(tmp_path):
+    """`tetdose dose --ct` with [calibration]: the record holds mu_calibration beside the HU
+    curve's name (`calibration`), the unit is Gy per fraction, the image is scaled by it."""
+    import json
+
+    from tetdose.cli import main
+    from tetdose.image import Image, ImageGrid
+    from tetdose.io import read_image, write_image
+
+    grid = ImageGrid(np.array([-45.0, 5.0, -45.0]), np.full(3, 10.0), np.eye(3), (10, 10, 10))
+    write_image(tmp_path / "ct.nrrd", Image(np.zeros(grid.shape, dtype=np.int16), grid))
+    (tmp_path / "plan.toml").write_text(
+        '[[beam]]\ntype = "linac"\nspectrum = "Co60"\nisocenter_mm = [0, 0, 0]\nweight = 50.0\n'
+        '[calibration]\ngy_per_mu = 0.01\nreference_histories = 20000\n')
+    assert main(["dose", "--ct", str(tmp_path / "ct.nrrd"), "--plan", str(tmp_path / "plan.toml"),
+                 "--histories", "5e3", "-q", "-o", str(tmp_path / "dose.nrrd")]) == 0
+    rec = json.loads((tmp_path / "dose.json").read_text())
+    assert rec["units"]["dose"] == "Gy per fraction"
+    assert rec["calibration"] == "schneider2000"  # the HU curve, untouched
+    cal = rec["mu_calibration"]
+    assert cal["gy_per_mu"] == 0.01 and cal["mu"] == 50.0
+    assert rec["calibration_scale"] == pytest.approx(0.5 / cal["reference_gy_per_photon"])
+    dose = read_image(tmp_path / "dose.nrrd").array
+    assert 0.1 < dose.max() < 2.0  # ~0.5 Gy at 100 mm, more at d_max: Gy, not Gy per photon

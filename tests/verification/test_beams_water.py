@@ -55,7 +55,7 @@ def _at(depth, d, s, where):
     return val, val * np.hypot(s[i] / d[i], s[i + 1] / d[i + 1]) / np.sqrt(2)
 
 
-@pytest.mark.parametrize("spec", ["6MV", "Co60"])
+@pytest.mark.parametrize("spec", ["6MV", "Co60", "Co60scatter"])
 def test_depth_dose_ratio_follows_the_tpr_pdd_relation(spec):
     n = 6_000_000
     d, s, depth, _ = _run(spec, 0.0, n, 1)  # SSD 1000 mm, 100×100 mm² at the surface
