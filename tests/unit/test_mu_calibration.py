@@ -118,3 +118,24 @@ def test_cli_dose_record_says_gy_per_fraction_and_keeps_the_calibration(tmp_path
     assert rec["calibration_scale"] == pytest.approx(0.5 / cal["reference_gy_per_photon"])
     dose = read_image(tmp_path / "dose.nrrd").array
     assert 0.1 < dose.max() < 2.0  # ~0.5 Gy at 100 mm, more at d_max: Gy, not Gy per photon
+
+
+def test_dose4d_phases_and_accumulation_get_the_one_calibration_factor():
+    """prescribe_dose4d with [calibration]: every phase result and the accumulated dose are
+    multiplied by gy_per_mu · ΣW / D_ref (the same factor as one run), units Gy per fraction."""
+    from tetdose.accumulate import AccumulatedDose
+    from tetdose.dose4d import Dose4D
+    from tetdose.prescription import prescribe_dose4d
+
+    rho, lab, _ = reference_phantom(100.0)
+    plan = Plan.from_dict({"beam": [_linac(80.0)], "materials": {1: "water"},
+                           "calibration": _cal(reference_histories=20_000)})
+    r = simulate(rho, plan, TransportSettings(2000, 2, 3), labels=lab, progress=False)
+    acc = AccumulatedDose(r.dose_gy.copy(), r.dose_std_gy.copy(), r.mass_g, np.ones(1), 0.0)
+    d4 = prescribe_dose4d(Dose4D(None, [r, r], acc, None), plan)
+    s = d4.results[0].record()["calibration_scale"]
+    assert s == pytest.approx(calibration_scale(plan)[0])
+    np.testing.assert_allclose(d4.accumulated.dose_gy, r.dose_gy * s)
+    for p in d4.results:
+        np.testing.assert_allclose(p.dose_gy, r.dose_gy * s)
+        assert p.record()["units"]["dose"] == "Gy per fraction"
