@@ -16,7 +16,7 @@ import numpy as np
 from tetdose._atomic import atomic_write_file, check_output_file
 from tetdose.errors import ImageError, MeshError
 from tetdose.image import Image, check_ct_hu
-from tetdose.mesh import TetMesh
+from tetdose.mesh import TetMesh, compact_points
 
 #: Relative tolerance on slice-to-slice spacing of a DICOM series.
 SLICE_SPACING_RTOL = 1e-3
@@ -92,16 +92,12 @@ def read_mesh(path: str | os.PathLike[str], *, fix_orientation: bool = False) ->
         if name in cell_data:
             region = cell_data.pop(name).astype(np.int64).reshape(-1)
             break
-    used = np.unique(tets)
     points = np.asarray(m.points, dtype=np.float64)
     if points.shape[1] != 3:
         raise MeshError(f"{path}: points must be 3-D, got {points.shape[1]} coordinates")
     point_data = {k: np.asarray(v) for k, v in m.point_data.items()}
-    if len(used) < len(points):
-        # Drop points no tetrahedron uses (e.g. surface-only nodes), renumbering the cells.
-        new_id = np.full(len(points), -1, dtype=np.intp)
-        new_id[used] = np.arange(len(used))
-        points, tets = points[used], new_id[tets]
+    if len(np.unique(tets)) < len(points):  # surface-only nodes and the like
+        points, tets, used = compact_points(points, tets)
         point_data = {k: v[used] for k, v in point_data.items()}
     mesh = TetMesh(points, tets, region, point_data, cell_data)
     far = np.abs(mesh.points_mm).max(axis=1) > MAX_COORD_MM
