@@ -114,6 +114,8 @@ CASES = [
     # --- evaluate (its module is another issue's; the checks it reaches are ours)
     ("evaluate-nan-density", ["evaluate", "--ct", "{d}/ct.nrrd", "--mesh", "{d}/nan_density.vtu",
                               "-o", "{o}/report"], ["NaN", "tetdose map"]),
+    ("evaluate-negative-density", EVAL[:5] + ["{d}/neg_density.vtu"] + EVAL[6:],
+     ["negative", "--solver l2"]),
     ("evaluate-uint16-ct", EVAL[:3] + ["{d}/ct_u16.nrrd"] + EVAL[4:], ["uint16"]),
     # --- phantom
     ("phantom-seed-negative", ["phantom", "cube", "--size", "small", "--seed", "-1", "-o",
@@ -187,6 +189,7 @@ CASES = [
                                          "{d}/zero_dose.nrrd"] + CMP[6:], ["zero", "dose"]),
     ("compare-threshold-150", CMP + ["--threshold", "150"], ["--threshold", "100"]),
     ("compare-threshold-negative", CMP + ["--threshold", "-5"], ["--threshold"]),
+    ("compare-threshold-100", CMP + ["--threshold", "100"], ["--threshold", "[0, 100)"]),
     ("compare-gamma-points-zero", CMP + ["--gamma-max-points", "0"], ["--gamma-max-points"]),
     ("compare-mesh-without-dose", _with(CMP, **{"mesh-dose": "{d}/mapped.vtu"}),
      ["cell_data 'dose'"]),
@@ -203,6 +206,8 @@ CASES = [
     ("register-reference-absent", _with(REG, reference="37"), ["37 %", "pick one"]),
     ("register-phase-uint16", REG[:3] + ["{d}/ct_u16.nrrd"] + REG[4:], ["uint16"]),
     ("register-smoothing-negative", REG + ["--smoothing-mm", "-1"], ["--smoothing-mm"]),
+    ("register-threads-zero", REG + ["--threads", "0"], ["--threads", "≥ 1"]),
+    ("register-output-is-input", REG[:-1] + ["{d}"], ["holds the input"]),
 ]
 
 

@@ -47,7 +47,7 @@ COMMANDS = {
 
 #: Commands whose -o is a folder replaced as a whole: they all take --overwrite (a command's
 #: module may add it itself through cli._common.add_output_args).
-FOLDER_OUTPUTS = ("deform", "4dct", "compare", "dose4d", "demo", "phantom")
+FOLDER_OUTPUTS = ("deform", "register", "4dct", "compare", "dose4d", "demo", "phantom")
 
 #: Commands that read a CT: they take --resample-tilted (see tetdose.io.tilted_policy).
 CT_READERS = ("map", "voxelize", "evaluate", "deform", "register", "4dct", "dose", "export-dose",

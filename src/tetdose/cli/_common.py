@@ -79,20 +79,21 @@ def count(text: str) -> int:
     return int(value)
 
 
-def float_in(low: float, high: float = math.inf, *, low_open: bool = False) -> Callable[[str],
-                                                                                         float]:
-    """argparse type: a finite number in [low, high] (or (low, high] with ``low_open``)."""
-    bracket = "(" if low_open else "["
+def float_in(low: float, high: float = math.inf, *, low_open: bool = False,
+             high_open: bool = False) -> Callable[[str], float]:
+    """argparse type: a finite number in [low, high]; ``low_open``/``high_open`` exclude the
+    ends."""
+    left, right = "(" if low_open else "[", ")" if high_open else "]"
     span = f"> {low:g}" if high == math.inf and low_open else f"≥ {low:g}" \
-        if high == math.inf else f"in {bracket}{low:g}, {high:g}]"
+        if high == math.inf else f"in {left}{low:g}, {high:g}{right}"
 
     def parse(text: str) -> float:
         try:
             value = float(text)
         except ValueError:
             value = math.nan
-        if not math.isfinite(value) or value < low or value > high or (low_open and
-                                                                        value == low):
+        if not math.isfinite(value) or value < low or value > high or \
+                (low_open and value == low) or (high_open and value == high):
             raise argparse.ArgumentTypeError(f"expected a finite number {span}, got {text!r}")
         return value
 

@@ -37,7 +37,7 @@ def add_args(parser: argparse.ArgumentParser) -> None:
                         help="label image (0 = background) or a DICOM RTSTRUCT file")
     parser.add_argument("--reference", choices=("voxel", "mesh"), default="voxel",
                         help="which dose is the gamma reference (default voxel)")
-    parser.add_argument("--threshold", type=float_in(0.0, 100.0), default=10.0,
+    parser.add_argument("--threshold", type=float_in(0.0, 100.0, high_open=True), default=10.0,
                         help="gamma low-dose threshold [%% of the reference maximum]")
     parser.add_argument("--gamma-max-points", type=int_at_least(1), default=200_000,
                         help="evaluate gamma on a seeded random sample of at most this many "
