@@ -108,7 +108,8 @@ def write_rt_dose(
     if reference_ct is None and frame_of_reference_uid is None:
         warnings.warn(
             "no reference_ct or frame_of_reference_uid: the RT Dose gets a new Frame of "
-            "Reference and cannot be overlaid on the CT; pass reference_ct=",
+            "Reference and cannot be overlaid on the CT; give the CT's DICOM series folder "
+            "(export-dose --like, or reference_ct=)",
             stacklevel=2,
         )
     digest = image_digest(dose_gy)
