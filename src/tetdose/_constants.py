@@ -10,3 +10,5 @@ AIR_DENSITY_G_CM3 = 0.00120479
 J_PER_MEV = 1.602176634e-13
 #: Grams per kilogram.
 G_PER_KG = 1000.0
+#: keV per MeV (interaction tables list energies in keV).
+KEV_PER_MEV = 1000.0

@@ -6,7 +6,8 @@ import contextlib
 import io
 import os
 import warnings
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextvars import ContextVar
 from pathlib import Path
 from typing import Any
 
@@ -15,7 +16,7 @@ import numpy as np
 from tetdose._atomic import atomic_write_file, check_output_file
 from tetdose.errors import ImageError, MeshError
 from tetdose.image import Image, check_ct_hu
-from tetdose.mesh import TetMesh
+from tetdose.mesh import TetMesh, compact_points
 
 #: Relative tolerance on slice-to-slice spacing of a DICOM series.
 SLICE_SPACING_RTOL = 1e-3
@@ -35,6 +36,22 @@ MESH_SUFFIXES = (".vtu", ".vtk", ".msh", ".xdmf", ".xmf", ".inp", ".mesh", ".mes
                  ".exo", ".e", ".ex2", ".cgns", ".tec", ".ugrid", ".su2", ".vol", ".vol.gz")
 #: cell_data names read as region labels, in order of preference.
 REGION_NAMES = ("region", "gmsh:physical", "medit:ref", "CellEntityIds", "tetgen:ref")
+#: Whether tilted/sheared DICOM series are resampled (:func:`tilted_policy`) or refused.
+_RESAMPLE_TILTED: ContextVar[bool] = ContextVar("resample_tilted", default=False)
+#: How the refusal of a tilted series names the way to allow it.
+RESAMPLE_HINT = ("rerun with --resample-tilted (Python: resample_tilted=True) to resample it onto "
+                 "an orthogonal grid (linear, −1000 HU outside), or resample the series first")
+
+
+@contextlib.contextmanager
+def tilted_policy(resample: bool) -> Iterator[None]:
+    """During the block, DICOM series read without an explicit ``resample_tilted`` resample a
+    gantry tilt or sheared/skewed grid (``resample=True``) instead of refusing it."""
+    token = _RESAMPLE_TILTED.set(bool(resample))
+    try:
+        yield
+    finally:
+        _RESAMPLE_TILTED.reset(token)
 
 
 def read_mesh(path: str | os.PathLike[str], *, fix_orientation: bool = False) -> TetMesh:
@@ -75,16 +92,12 @@ def read_mesh(path: str | os.PathLike[str], *, fix_orientation: bool = False) ->
         if name in cell_data:
             region = cell_data.pop(name).astype(np.int64).reshape(-1)
             break
-    used = np.unique(tets)
     points = np.asarray(m.points, dtype=np.float64)
     if points.shape[1] != 3:
         raise MeshError(f"{path}: points must be 3-D, got {points.shape[1]} coordinates")
     point_data = {k: np.asarray(v) for k, v in m.point_data.items()}
-    if len(used) < len(points):
-        # Drop points no tetrahedron uses (e.g. surface-only nodes), renumbering the cells.
-        new_id = np.full(len(points), -1, dtype=np.intp)
-        new_id[used] = np.arange(len(used))
-        points, tets = points[used], new_id[tets]
+    if len(np.unique(tets)) < len(points):  # surface-only nodes and the like
+        points, tets, used = compact_points(points, tets)
         point_data = {k: v[used] for k, v in point_data.items()}
     mesh = TetMesh(points, tets, region, point_data, cell_data)
     far = np.abs(mesh.points_mm).max(axis=1) > MAX_COORD_MM
@@ -126,11 +139,12 @@ def _meshio_format(path: Path) -> str | None:
     return {".vtu": "vtu", ".vtk": "vtk", ".msh": "gmsh", ".xdmf": "xdmf"}.get(path.suffix.lower())
 
 
-def read_image(path: str | os.PathLike[str]) -> Image:
+def read_image(path: str | os.PathLike[str], *, resample_tilted: bool | None = None) -> Image:
     """Read a scalar image: a DICOM series folder, or a file SimpleITK reads (NRRD, MHA, NIfTI…).
 
     A DICOM folder must hold one CT series with uniformly spaced slices; values are returned in
-    HU (RescaleSlope/Intercept applied).
+    HU (RescaleSlope/Intercept applied). A tilted or sheared series is refused, or with
+    ``resample_tilted`` (default: :func:`tilted_policy`) resampled (:mod:`tetdose.tilted`).
     """
     import SimpleITK as sitk
 
@@ -138,7 +152,7 @@ def read_image(path: str | os.PathLike[str]) -> Image:
     if not path.exists():
         raise ImageError(f"image {path} does not exist")
     if path.is_dir():
-        return _read_dicom_series(path)
+        return _read_dicom_series(path, resample_tilted)
     try:
         img = sitk.ReadImage(str(path))
     except RuntimeError as exc:
@@ -146,14 +160,14 @@ def read_image(path: str | os.PathLike[str]) -> Image:
     return Image.from_sitk(img)
 
 
-def read_ct(path: str | os.PathLike[str]) -> Image:
+def read_ct(path: str | os.PathLike[str], *, resample_tilted: bool | None = None) -> Image:
     """Read a CT [HU] with :func:`read_image` and refuse what cannot be one
     (:func:`tetdose.image.check_ct_hu`: unsigned or 8-bit pixels, NaN voxels, values off the HU
     range)."""
-    return check_ct_hu(read_image(path), f"the CT {path}")
+    return check_ct_hu(read_image(path, resample_tilted=resample_tilted), f"the CT {path}")
 
 
-def _read_dicom_series(folder: Path) -> Image:
+def _read_dicom_series(folder: Path, resample_tilted: bool | None = None) -> Image:
     import SimpleITK as sitk
 
     reader = sitk.ImageSeriesReader()
@@ -162,16 +176,21 @@ def _read_dicom_series(folder: Path) -> Image:
         raise ImageError(f"{folder} holds no DICOM image series")
     if len(series) > 1:
         raise ImageError(f"{folder} holds {len(series)} series; give a folder with one CT series")
-    return read_dicom_files(reader.GetGDCMSeriesFileNames(str(folder), series[0]), what=str(folder))
+    return read_dicom_files(reader.GetGDCMSeriesFileNames(str(folder), series[0]), what=str(folder),
+                            resample_tilted=resample_tilted)
 
 
 def read_dicom_files(files: Sequence[str | os.PathLike[str]], *, what: str,
-                     headers: Sequence[Any] | None = None) -> Image:
+                     headers: Sequence[Any] | None = None,
+                     resample_tilted: bool | None = None) -> Image:
     """Read the slices ``files`` of one CT series (in slice order) as one image [HU].
 
     Checks (the error names ``what``): modality CT; every slice with the same rows, columns,
     pixel spacing and orientation; uniformly spaced slice positions along the slice normal (a
     missing or duplicate slice breaks it). ``headers``: the files' pydicom headers if already read.
+    A gantry tilt, sheared slice positions or a non-orthonormal ImageOrientationPatient are
+    refused unless ``resample_tilted`` (default: :func:`tilted_policy`); then the stack is
+    resampled onto an orthogonal grid (:mod:`tetdose.tilted`), with a warning saying so.
     """
     import pydicom
     import SimpleITK as sitk
@@ -182,17 +201,44 @@ def read_dicom_files(files: Sequence[str | os.PathLike[str]], *, what: str,
     modality = {str(h.get("Modality", "")) for h in headers}
     if modality != {"CT"}:
         raise ImageError(f"{what}: modality {sorted(modality)}, expected CT; give a CT series")
-    normal = _check_orientation(what, headers)
+    resample = _RESAMPLE_TILTED.get() if resample_tilted is None else resample_tilted
+    normal, skewed = _check_orientation(what, headers, allow=resample)
     _check_rescale(what, headers)
     _check_slice_geometry(headers, what)
-    if len(files) > 1:
-        _check_shear(what, headers, normal)
+    sheared = len(files) > 1 and _check_shear(what, headers, normal, allow=resample)
+    if skewed or sheared:
+        return _read_tilted(files, headers, normal, what)
     reader = sitk.ImageSeriesReader()
     reader.SetFileNames(files)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         img = reader.Execute()
     return check_ct_hu(Image.from_sitk(img), f"the CT series {what}")
+
+
+def _read_tilted(files: list[str], headers: Sequence[Any], normal: np.ndarray,
+                 what: str) -> Image:
+    """A tilted/sheared/skewed series resampled onto an orthogonal grid (tetdose.tilted)."""
+    import SimpleITK as sitk
+
+    from tetdose.tilted import OUTSIDE_HU, resample_stack, stack_affine
+
+    pos = np.array([[float(v) for v in h.ImagePositionPatient] for h in headers])
+    order = np.argsort(pos @ normal, kind="stable")
+    reader = sitk.ImageSeriesReader()
+    reader.SetFileNames([files[i] for i in order])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        stack = sitk.GetArrayFromImage(reader.Execute())
+    iop = np.array([float(v) for v in headers[0].ImageOrientationPatient])
+    spacing = tuple(float(v) for v in headers[0].PixelSpacing)
+    a, p0 = stack_affine(pos[order], iop[:3], iop[3:], spacing)  # type: ignore[arg-type]
+    image = resample_stack(stack, a, p0)
+    tilt = float(np.degrees(np.arccos(min(1.0, abs(a[:, 2] @ normal) / np.linalg.norm(a[:, 2])))))
+    warnings.warn(f"{what}: tilted or sheared series (slice axis {tilt:.2f}° off the slice "
+                  "normal) resampled onto an orthogonal grid (linear interpolation, "
+                  f"{OUTSIDE_HU:g} HU outside the stack)", stacklevel=3)
+    return check_ct_hu(image, f"the CT series {what}")
 
 
 def _check_slice_geometry(headers: Sequence[Any], what: str) -> None:
@@ -220,8 +266,10 @@ def _check_slice_geometry(headers: Sequence[Any], what: str) -> None:
             )
 
 
-def _check_orientation(folder: Path, headers: list) -> np.ndarray:  # type: ignore[type-arg]
-    """The series' common, orthonormal ImageOrientationPatient → the slice normal."""
+def _check_orientation(folder: Path, headers: list,  # type: ignore[type-arg]
+                       allow: bool = False) -> tuple[np.ndarray, bool]:
+    """The series' common ImageOrientationPatient → (unit slice normal, whether it is not
+    orthonormal: refused unless ``allow``)."""
     try:
         iops = np.array([[float(v) for v in h.ImageOrientationPatient] for h in headers])
         np.array([[float(v) for v in h.ImagePositionPatient] for h in headers]).reshape(-1, 3)
@@ -235,13 +283,14 @@ def _check_orientation(folder: Path, headers: list) -> np.ndarray:  # type: igno
                          "series whose slices share one orientation")
     row, col = iops[0, :3], iops[0, 3:]
     dev = max(abs(np.linalg.norm(row) - 1), abs(np.linalg.norm(col) - 1), abs(row @ col))
-    if dev > ORIENTATION_TOL:
+    skewed = dev > ORIENTATION_TOL
+    if skewed and not allow:
         raise ImageError(
             f"{folder}: ImageOrientationPatient {iops[0].round(6).tolist()} is not orthonormal "
-            f"(row·column = {row @ col:.3g}); refused — fix the header or resample the series "
-            "onto an orthogonal grid first"
+            f"(row·column = {row @ col:.3g}); refused, not resampled — {RESAMPLE_HINT}"
         )
-    return np.cross(row, col)
+    normal = np.cross(row, col)
+    return normal / np.linalg.norm(normal), bool(skewed)
 
 
 def _check_rescale(folder: Path, headers: list) -> None:  # type: ignore[type-arg]
@@ -258,8 +307,10 @@ def _check_rescale(folder: Path, headers: list) -> None:  # type: ignore[type-ar
                              "cannot give HU; fix the series headers")
 
 
-def _check_shear(folder: Path, headers: list, normal: np.ndarray) -> None:  # type: ignore[type-arg]
-    """Refuse slice positions that drift in-plane along the stack (gantry tilt, sheared grid)."""
+def _check_shear(folder: Path, headers: list, normal: np.ndarray,  # type: ignore[type-arg]
+                 allow: bool = False) -> bool:
+    """Whether slice positions drift in-plane along the stack (gantry tilt, sheared grid):
+    refused unless ``allow``."""
     pos = np.array([[float(v) for v in h.ImagePositionPatient] for h in headers])
     along = pos @ normal
     first = int(np.argmin(along))
@@ -267,13 +318,15 @@ def _check_shear(folder: Path, headers: list, normal: np.ndarray) -> None:  # ty
     drift = rel - np.outer(along - along[first], normal)
     shear_mm = float(np.sqrt((drift**2).sum(axis=1)).max())
     length = float(along.max() - along.min())
-    if shear_mm > max(0.01, SHEAR_REL_TOL * length):
+    sheared = shear_mm > max(0.01, SHEAR_REL_TOL * length)
+    if sheared and not allow:
         tilt = float(np.degrees(np.arctan2(shear_mm, length)))
         raise ImageError(
             f"{folder}: slice positions drift {shear_mm:.3g} mm in-plane over the {length:.4g} mm "
             f"stack (gantry tilt or sheared grid, ≈ {tilt:.2f}°); refused, not resampled — "
-            "resample the series onto an orthogonal grid first"
+            f"{RESAMPLE_HINT}"
         )
+    return bool(sheared)
 
 
 def write_image(path: str | os.PathLike[str], image: Image, *, compress: bool = True,

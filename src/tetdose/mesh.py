@@ -35,6 +35,17 @@ def signed_volumes_mm3(points_mm: FloatArray, tets: IntArray) -> FloatArray:
     return np.einsum("ij,ij->i", e1, np.cross(e2, e3)) / 6.0
 
 
+def compact_points(points_mm: FloatArray, tets: IntArray) -> tuple[FloatArray, IntArray, IntArray]:
+    """Drop the points no tetrahedron uses and renumber the cells, keeping the points' order.
+
+    Returns (kept points (P, 3), renumbered tets (M, 4) intp, ids of the kept points (P,)), so
+    per-point arrays follow with ``values[kept_ids]``.
+    """
+    used, new_ids = np.unique(np.asarray(tets), return_inverse=True)
+    return (np.ascontiguousarray(np.asarray(points_mm)[used]),
+            np.ascontiguousarray(new_ids.reshape(np.shape(tets)), dtype=np.intp), used)
+
+
 @dataclass(frozen=True, eq=False)
 class TetMesh:
     """A tetrahedral mesh: points [mm], cells, optional region labels and extra arrays.

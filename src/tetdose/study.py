@@ -245,7 +245,8 @@ class _Run:
         self.summary["dvh"] = self._dvh(ref_mesh, emt, ddm)
         self._profiles(ref_mesh, emt, ddm)
         write_rt_dose(d4.body.combined, self.out / "rtdose.dcm",
-                      reference_ct=self.out / "ct4d" / "dicom" / "phase_000", plan=self.plan)
+                      reference_ct=self.out / "ct4d" / "dicom" / "phase_000", plan=self.plan,
+                      unit=_UNIT)
         matched = gammas["static phase, matched resolution: voxel vs mesh 3%/3mm global"]
         return (f"gamma 3%/3mm static phase {matched['pass_rate_percent']:.1f} % (matched "
                 "resolution); RT Dose written")

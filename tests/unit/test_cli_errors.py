@@ -10,110 +10,53 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-import meshio
 import numpy as np
-import pydicom
 import pytest
-import SimpleITK as sitk
 
-from tetdose.calibration import HUCalibration
+from cli_inputs import build
 from tetdose.cli import build_parser, main
-from tetdose.dicom.ct_series import write_ct_series
-from tetdose.image import Image
 from tetdose.io import write_image, write_mesh
 
 from helpers import box_mesh, density_image, grid_for
 
-CAL = HUCalibration.schneider2000()
-
-
-def _raw_mesh(path: Path, points: np.ndarray, cells: list, **point_data: np.ndarray) -> None:
-    meshio.write(path, meshio.Mesh(points, cells, point_data=point_data))
-
-
-def _dicom_variant(src: list[Path], out: Path, edit) -> None:  # noqa: ANN001
-    """Copy a DICOM series into ``out`` with ``edit(dataset, k)`` applied to slice k
-    (``edit`` returning False drops the slice)."""
-    out.mkdir()
-    for k, f in enumerate(src):
-        ds = pydicom.dcmread(f)
-        if edit(ds, k) is not False:
-            ds.save_as(out / f.name)
-
 
 @pytest.fixture(scope="module")
 def d(tmp_path_factory) -> Path:
-    d = tmp_path_factory.mktemp("inputs")
-    grid = grid_for([0, 0, 0], [24, 20, 16], [2.0, 2.0, 2.0])
-    rho = density_image(grid, lambda x, y, z: np.where(x < 12, 0.26, 1.05) + 0.002 * y)
-    ct = rho.with_array(np.round(CAL.hu_of(rho.array)).astype(np.int16))
-    write_image(d / "ct.nrrd", ct)
-    write_image(d / "ct_u16.nrrd", ct.with_array(ct.array.astype(np.uint16)))  # wrapped HU
-    write_image(d / "ct_i8.nrrd", ct.with_array(np.clip(ct.array, -128, 127).astype(np.int8)))
-    nan_ct = ct.array.astype(np.float32)
-    nan_ct[3, 4, 5] = np.nan
-    write_image(d / "ct_nan.nrrd", ct.with_array(nan_ct))
-    sitk.WriteImage(sitk.GetImageFromArray(np.zeros((5, 6), np.int16)), str(d / "ct_2d.nrrd"))
-    frame = sitk.GetImageFromArray(np.zeros((3, 4, 5), np.int16))
-    sitk.WriteImage(sitk.JoinSeries([frame, frame]), str(d / "ct_4d.nrrd"))
-    (d / "empty.nrrd").write_bytes(b"")
-    (d / "garbage.nrrd").write_bytes(np.random.default_rng(0).bytes(300))
-
-    mesh = box_mesh([3, 3, 2], [21, 17, 14], (3, 3, 2), jitter=0.2)
-    write_mesh(d / "mesh.vtu", mesh)
-    vtu = (d / "mesh.vtu").read_bytes()
-    (d / "empty.vtu").write_bytes(b"")
-    (d / "truncated.vtu").write_bytes(vtu[: len(vtu) // 2])
-    (d / "garbage.vtu").write_bytes(np.random.default_rng(1).bytes(500))
-    pts, tets = mesh.points_mm, mesh.tets
-    _raw_mesh(d / "triangles.vtu", pts, [("triangle", tets[:, :3])])
-    nan_pts = pts.copy()
-    nan_pts[5] = np.nan
-    _raw_mesh(d / "nan_points.vtu", nan_pts, [("tetra", tets)])
-    inverted = tets.copy()
-    inverted[0, [0, 1]] = inverted[0, [1, 0]]
-    _raw_mesh(d / "inverted.vtu", pts, [("tetra", inverted)])
-    flat = np.array([[0, 0, 0], [10, 0, 0], [0, 10, 0], [5, 5, 0], [0, 0, 10.0]]) + 4
-    _raw_mesh(d / "flat.vtu", flat, [("tetra", np.array([[0, 1, 2, 4], [0, 1, 2, 3]]))])
-    far_pts = pts.copy()
-    far_pts[np.argmax(pts[:, 0])] = [1e12, 0, 0]
-    _raw_mesh(d / "far_point.vtu", far_pts, [("tetra", tets)])
-    write_mesh(d / "outside.vtu", box_mesh([500, 500, 500], [510, 510, 510], (1, 1, 1)))
-    ones = np.ones(mesh.n_points)
-    write_mesh(d / "mapped.vtu", mesh.with_data(point_data={"density": ones}))
-    nan_rho = ones.copy()
-    nan_rho[7] = np.nan
-    write_mesh(d / "nan_density.vtu", mesh.with_data(point_data={"density": nan_rho}))
-    write_mesh(d / "neg_density.vtu", mesh.with_data(point_data={"density": ones - 2.0}))
-    (d / "bad_cal.csv").write_text("HU,density\n0,1.0\n-100,0.9\n")
-
-    series = write_ct_series(Image(ct.array, ct.grid), d / "dicom_ok")
-    _dicom_variant(series, d / "dicom_missing", lambda ds, k: k != 3)
-    _dicom_variant(series, d / "dicom_mr", lambda ds, k: setattr(ds, "Modality", "MR"))
-    _dicom_variant(series, d / "dicom_slope0", lambda ds, k: setattr(ds, "RescaleSlope", "0"))
-
-    def shear(ds, k):  # noqa: ANN001, ANN202 - a gantry tilt: slices shift along y
-        pos = [float(v) for v in ds.ImagePositionPatient]
-        ds.ImagePositionPatient = [pos[0], pos[1] + 0.35 * k, pos[2]]
-
-    _dicom_variant(series, d / "dicom_sheared", shear)
-    _dicom_variant(series, d / "dicom_skewed", lambda ds, k: setattr(
-        ds, "ImageOrientationPatient", [1, 0, 0, 0.2, 0.98, 0]))
-    return d
+    return build(tmp_path_factory.mktemp("inputs"))
 
 
 MAP = ["map", "-q", "--ct", "{d}/ct.nrrd", "--mesh", "{d}/mesh.vtu", "-o", "{o}/out.vtu"]
 
 
-def _map(**change: str) -> list[str]:
-    argv = list(MAP)
+def _with(base: list[str], **change: str) -> list[str]:
+    """``base`` with the value after ``--FLAG`` replaced for each FLAG=value."""
+    argv = list(base)
     for flag, value in change.items():
         argv[argv.index(f"--{flag}") + 1] = value
     return argv
 
 
+def _map(**change: str) -> list[str]:
+    return _with(MAP, **change)
+
+
 VOX = ["voxelize", "-q", "--mesh", "{d}/mapped.vtu", "--like", "{d}/ct.nrrd",
        "-o", "{o}/vct.nrrd"]
+DEFORM = ["deform", "-q", "--mesh", "{d}/mapped.vtu", "--breathing", "--n-phases", "2", "-o",
+          "{o}/ph"]
+V4D = ["4dct", "-q", "--phases", "{d}/phases", "--like", "{d}/ct.nrrd", "-o", "{o}/v4"]
+DOSE = ["dose", "-q", "--mesh", "{d}/mapped.vtu", "--plan", "{d}/plan.toml", "--histories", "2000",
+        "--batches", "2", "-o", "{o}/dose.vtu"]
+DOSE_CT = ["dose", "--ct", "{d}/ct.nrrd", "--plan", "{d}/plan.toml", "--histories", "2000",
+           "-o", "{o}/dose.nrrd"]
+DOSE4D = ["dose4d", "-q", "--phases", "{d}/phases", "--plan", "{d}/plan.toml", "--histories",
+          "2000", "--batches", "2", "-o", "{o}/d4"]
+CMP = ["compare", "-q", "--mesh-dose", "{d}/dose.vtu", "--voxel-dose", "{d}/dose.nrrd", "-o",
+       "{o}/cmp"]
+EXPORT = ["export-dose", "-q", "--dose", "{d}/dose.vtu", "--like", "{d}/ct.nrrd", "-o",
+          "{o}/rd.dcm"]
+REG = ["register", "-q", "--4dct", "{d}/ct.nrrd", "{d}/ct_coarse.nrrd", "--reference", "0", "-o",
+       "{o}/reg"]
 EVAL = ["evaluate", "-q", "--ct", "{d}/ct.nrrd", "--mesh", "{d}/mapped.vtu", "-o", "{o}/report"]
 
 CASES = [
@@ -139,9 +82,10 @@ CASES = [
     ("map-nan-voxel", _map(ct="{d}/ct_nan.nrrd"), ["NaN", "i=5, j=4, k=3", "−1000 HU"]),
     ("map-dicom-missing-slice", _map(ct="{d}/dicom_missing"), ["not uniform", "missing"]),
     ("map-dicom-mr", _map(ct="{d}/dicom_mr"), ["modality", "MR", "CT series"]),
-    ("map-dicom-sheared", _map(ct="{d}/dicom_sheared"), ["gantry tilt", "not resampled"]),
+    ("map-dicom-sheared", _map(ct="{d}/dicom_sheared"), ["gantry tilt", "not resampled",
+                                                         "--resample-tilted"]),
     ("map-dicom-slope-0", _map(ct="{d}/dicom_slope0"), ["RescaleSlope 0", "fix the series"]),
-    ("map-dicom-skewed", _map(ct="{d}/dicom_skewed"), ["not orthonormal"]),
+    ("map-dicom-skewed", _map(ct="{d}/dicom_skewed"), ["not orthonormal", "--resample-tilted"]),
     ("map-bad-calibration", MAP + ["--calibration", "{d}/bad_cal.csv"], ["increasing"]),
     # --- map: options and output, checked before any work
     ("map-samples-negative", MAP + ["--overlap", "monte-carlo", "--samples", "-10"],
@@ -170,6 +114,8 @@ CASES = [
     # --- evaluate (its module is another issue's; the checks it reaches are ours)
     ("evaluate-nan-density", ["evaluate", "--ct", "{d}/ct.nrrd", "--mesh", "{d}/nan_density.vtu",
                               "-o", "{o}/report"], ["NaN", "tetdose map"]),
+    ("evaluate-negative-density", EVAL[:5] + ["{d}/neg_density.vtu"] + EVAL[6:],
+     ["negative", "--solver l2"]),
     ("evaluate-uint16-ct", EVAL[:3] + ["{d}/ct_u16.nrrd"] + EVAL[4:], ["uint16"]),
     # --- phantom
     ("phantom-seed-negative", ["phantom", "cube", "--size", "small", "--seed", "-1", "-o",
@@ -177,6 +123,91 @@ CASES = [
     ("phantom-unknown-name", ["phantom", "sphere-of-cheese", "-o", "{o}/ph"], ["invalid choice"]),
     ("phantom-output-is-input-folder", ["phantom", "cube", "--size", "small", "-o", "{d}"],
      ["holds files tetdose did not write", "--overwrite"]),
+    # --- deform
+    ("deform-duplicate-vertices", _with(DEFORM, mesh="{d}/duplicates.vtu"), ["coincide", "merge"]),
+    ("deform-negative-density", _with(DEFORM, mesh="{d}/neg_density.vtu"),
+     ["negative", "tetdose map"]),
+    ("deform-nan-density", _with(DEFORM, mesh="{d}/nan_density.vtu"), ["NaN", "tetdose map"]),
+    ("deform-unmapped-mesh", _with(DEFORM, mesh="{d}/mesh.vtu"), ["no point_data 'density'"]),
+    ("deform-inverted-tets", _with(DEFORM, mesh="{d}/inverted_mapped.vtu"),
+     ["inverted", "tetdose map --fix-orientation"]),
+    ("deform-n-phases-zero", _with(DEFORM, **{"n-phases": "0"}), ["--n-phases", "≥ 1"]),
+    ("deform-amplitude-nan", DEFORM + ["--amplitude-mm", "nan"], ["--amplitude-mm", "finite"]),
+    ("deform-mismatched-phases", DEFORM[:4] + ["--phases", "{d}/phase_other.vtu"] + DEFORM[7:],
+     ["topology", "phase 0"]),
+    ("deform-dvf-is-a-ct", DEFORM[:4] + ["--dvf", "{d}/ct.nrrd"] + DEFORM[7:],
+     ["DVF", "3 components"]),
+    ("deform-4dct-without-reference", DEFORM[:4] + ["--4dct", "{d}/ct.nrrd", "{d}/ct.nrrd"]
+     + DEFORM[7:], ["--reference"]),
+    ("deform-output-holds-input", DEFORM[:4] + ["--phases", "{d}/phases/phase_001.vtu", "-o",
+                                                "{d}/phases"], ["holds the input"]),
+    # --- 4dct
+    ("4dct-background-word", V4D + ["--background", "water"], ["--background", "ct, air"]),
+    ("4dct-background-negative", V4D + ["--background", "-3"], ["--background", "≥ 0"]),
+    ("4dct-output-is-phases", V4D[:-1] + ["{d}/phases"], ["also an input"]),
+    ("4dct-mismatched-phases", _with(V4D, phases="{d}/phases_mixed"), ["topology", "phase 1"]),
+    ("4dct-like-uint16", _with(V4D, like="{d}/ct_u16.nrrd"), ["uint16", "signed HU"]),
+    ("4dct-like-sheared", _with(V4D, like="{d}/dicom_sheared"), ["gantry tilt",
+                                                                 "--resample-tilted"]),
+    ("4dct-like-mr", _with(V4D, like="{d}/dicom_mr"), ["modality", "CT series"]),
+    ("4dct-missing-phases", _with(V4D, phases="{d}/nope"), ["does not exist"]),
+    # --- dose
+    ("dose-histories-nan", _with(DOSE, histories="nan"), ["--histories", "whole number"]),
+    ("dose-histories-inf", _with(DOSE, histories="inf"), ["--histories", "whole number"]),
+    ("dose-histories-negative", _with(DOSE, histories="-5"), ["--histories", "whole number"]),
+    ("dose-histories-1e15", _with(DOSE, histories="1e15"), ["would take about", "--histories"]),
+    ("dose-batches-zero", DOSE + ["--batches", "0"], ["--batches", "≥ 2"]),
+    ("dose-cutoff-negative", DOSE + ["--cutoff-mev", "-1"], ["--cutoff-mev"]),
+    ("dose-seed-negative", DOSE + ["--seed", "-1"], ["--seed", "≥ 0"]),
+    ("dose-duplicate-vertices", _with(DOSE, mesh="{d}/duplicates.vtu"), ["coincide", "merge"]),
+    ("dose-negative-density", _with(DOSE, mesh="{d}/neg_density.vtu"), ["negative"]),
+    ("dose-nan-density", _with(DOSE, mesh="{d}/nan_density.vtu"), ["NaN", "tetdose map"]),
+    ("dose-unmapped-mesh", _with(DOSE, mesh="{d}/mesh.vtu"), ["no point_data 'density'"]),
+    ("dose-inverted-tets", _with(DOSE, mesh="{d}/inverted_mapped.vtu"),
+     ["inverted", "tetdose map --fix-orientation"]),
+    ("dose-unknown-plan-key", _with(DOSE, plan="{d}/plan_unknown_key.toml"),
+     ["unknown", "colour"]),
+    ("dose-position-word", _with(DOSE, plan="{d}/plan_position_word.toml"), ["position_mm"]),
+    ("dose-energy-too-high", _with(DOSE, plan="{d}/plan_energy_high.toml"), ["energies", "MeV"]),
+    ("dose-energy-negative", _with(DOSE, plan="{d}/plan_energy_negative.toml"),
+     ["energies", "MeV"]),
+    ("dose-beam-misses", _with(DOSE, plan="{d}/plan_miss.toml"), ["miss", "position_mm"]),
+    ("dose-unknown-extension", DOSE[:-1] + ["{o}/dose.xyz"], ["dose.xyz", ".vtu"]),
+    ("dose-output-is-input", DOSE[:-1] + ["{d}/mapped.vtu"], ["also an input"]),
+    ("dose-ct-uint16", DOSE_CT[:2] + ["{d}/ct_u16.nrrd"] + DOSE_CT[3:], ["uint16"]),
+    ("dose-ct-sheared", DOSE_CT[:2] + ["{d}/dicom_sheared"] + DOSE_CT[3:], ["gantry tilt"]),
+    ("dose-ct-4d", DOSE_CT[:2] + ["{d}/ct_4d.nrrd"] + DOSE_CT[3:], ["3-D image", "4-D"]),
+    ("dose-bad-calibration", DOSE_CT + ["--calibration", "{d}/bad_cal.csv"], ["increasing"]),
+    # --- dose4d
+    ("dose4d-mismatched-phases", _with(DOSE4D, phases="{d}/phases_mixed"), ["topology"]),
+    ("dose4d-histories-nan", _with(DOSE4D, histories="nan"), ["--histories", "whole number"]),
+    ("dose4d-output-is-phases", DOSE4D[:-1] + ["{d}/phases"], ["also an input"]),
+    ("dose4d-like-uint16", DOSE4D + ["--like", "{d}/ct_u16.nrrd"], ["uint16"]),
+    ("dose4d-beam-misses", _with(DOSE4D, plan="{d}/plan_miss.toml"), ["miss"]),
+    # --- compare and export-dose
+    ("compare-all-zero-dose", CMP[:3] + ["{d}/zero_dose.vtu", "--voxel-dose",
+                                         "{d}/zero_dose.nrrd"] + CMP[6:], ["zero", "dose"]),
+    ("compare-threshold-150", CMP + ["--threshold", "150"], ["--threshold", "100"]),
+    ("compare-threshold-negative", CMP + ["--threshold", "-5"], ["--threshold"]),
+    ("compare-threshold-100", CMP + ["--threshold", "100"], ["--threshold", "[0, 100)"]),
+    ("compare-gamma-points-zero", CMP + ["--gamma-max-points", "0"], ["--gamma-max-points"]),
+    ("compare-mesh-without-dose", _with(CMP, **{"mesh-dose": "{d}/mapped.vtu"}),
+     ["cell_data 'dose'"]),
+    ("export-unknown-extension", EXPORT[:-1] + ["{o}/rd.xyz"], ["rd.xyz", ".dcm"]),
+    # --- mesh
+    ("mesh-labels-is-a-ct", ["mesh", "--labels", "{d}/ct.nrrd", "-o", "{o}/m.vtu"],
+     ["--labels", "CT"]),
+    ("mesh-size-negative", ["mesh", "--labels", "{d}/labels.nrrd", "--size-mm", "-3", "-o",
+                            "{o}/m.vtu"], ["--size-mm", "> 0"]),
+    ("mesh-unknown-extension", ["mesh", "--labels", "{d}/labels.nrrd", "-o", "{o}/m.xyz"],
+     ["unknown extension"]),
+    ("mesh-no-input", ["mesh", "-o", "{o}/m.vtu"], ["--labels"]),
+    # --- register
+    ("register-reference-absent", _with(REG, reference="37"), ["37 %", "pick one"]),
+    ("register-phase-uint16", REG[:3] + ["{d}/ct_u16.nrrd"] + REG[4:], ["uint16"]),
+    ("register-smoothing-negative", REG + ["--smoothing-mm", "-1"], ["--smoothing-mm"]),
+    ("register-threads-zero", REG + ["--threads", "0"], ["--threads", "≥ 1"]),
+    ("register-output-is-input", REG[:-1] + ["{d}"], ["holds the input"]),
 ]
 
 
@@ -203,21 +234,24 @@ def test_bad_input_is_one_line_and_writes_nothing(d, tmp_path, capsys, argv, wor
 
 
 def test_existing_file_as_output_folder(d, tmp_path, capsys):
-    """evaluate and phantom given an existing file for -o: one line, the file kept."""
+    """Every folder-writing command given an existing file for -o: one line, the file kept."""
     blocker = tmp_path / "taken"
     blocker.write_bytes(b"precious")
-    for argv in (EVAL[:-1] + [str(blocker)], ["phantom", "cube", "--size", "small", "-o",
-                                             str(blocker)]):
+    for base in (EVAL, DEFORM, V4D, DOSE4D, CMP, ["phantom", "cube", "--size", "small", "-o", ""]):
+        argv = base[:-1] + [str(blocker)]
         code = main([a.format(d=d, o=tmp_path) for a in argv])
         err = capsys.readouterr().err.strip()
         assert code == 2 and len(err.splitlines()) == 1 and "existing file" in err, err
         assert blocker.read_bytes() == b"precious"
 
 
-def test_current_folder_as_output_is_refused(tmp_path, capsys, monkeypatch):
+@pytest.mark.parametrize("base", [["phantom", "cube", "--size", "small", "-o", "."],
+                                  DOSE4D[:-1] + ["."], DEFORM[:-1] + ["."]],
+                         ids=["phantom", "dose4d", "deform"])
+def test_current_folder_as_output_is_refused(d, tmp_path, capsys, monkeypatch, base):
     monkeypatch.chdir(tmp_path)
     (tmp_path / "keep.txt").write_text("mine")
-    assert main(["phantom", "cube", "--size", "small", "-o", "."]) == 2
+    assert main([a.format(d=d) for a in base]) == 2
     err = capsys.readouterr().err.strip()
     assert "current folder" in err and "-o out" in err and len(err.splitlines()) == 1
     assert [p.name for p in tmp_path.iterdir()] == ["keep.txt"]
@@ -237,12 +271,14 @@ def test_foreign_folder_needs_overwrite_and_own_output_does_not(tmp_path, capsys
     assert sorted(p.name for p in tmp_path.iterdir()) == ["ph"]  # no temporary left beside it
 
 
-def test_unwritable_output_folder_is_one_line(d, tmp_path, capsys, monkeypatch):
+@pytest.mark.parametrize("argv", [MAP, DOSE, DEFORM, V4D, DOSE4D, CMP, EXPORT],
+                         ids=lambda argv: argv[0])
+def test_unwritable_output_folder_is_one_line(d, tmp_path, capsys, monkeypatch, argv):
     """A read-only folder (simulated: the tests may run as root, who may write anywhere)."""
     real_access = os.access
     monkeypatch.setattr(os, "access", lambda p, mode, **kw: False if Path(p) == tmp_path
                         else real_access(p, mode, **kw))
-    code = main([a.format(d=d, o=tmp_path) for a in MAP])
+    code = main([a.format(d=d, o=tmp_path) for a in argv])
     err = capsys.readouterr().err.strip()
     assert code == 2 and len(err.splitlines()) == 1 and "permission denied" in err, err
     assert list(tmp_path.iterdir()) == []
@@ -330,3 +366,11 @@ def test_every_folder_writing_command_takes_overwrite(tmp_path, capsys):
     assert main(argv) == 2 and "--overwrite" in capsys.readouterr().err
     assert (out / "thesis.tex").exists()
     assert main([*argv, "--overwrite"]) == 0 and not (out / "thesis.tex").exists()
+
+
+def test_tilted_series_is_resampled_on_request(d, tmp_path, capsys):
+    """The refused sheared series maps with --resample-tilted, and the warning says so."""
+    argv = [a.format(d=d, o=tmp_path) for a in _map(ct="{d}/dicom_sheared")]
+    with pytest.warns(UserWarning, match="resampled onto an orthogonal grid"):
+        assert main([*argv, "--resample-tilted"]) == 0
+    assert (tmp_path / "out.vtu").exists()

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from tetdose.errors import MeshError, TopologyMismatchError
-from tetdose.mesh import FACE_VERTICES, TetMesh, signed_volumes_mm3
+from tetdose.mesh import FACE_VERTICES, TetMesh, compact_points, signed_volumes_mm3
 
 from helpers import box_mesh
 
@@ -73,3 +73,20 @@ def test_topology_mismatch_names_first_cell():
 def test_signed_volume_formula():
     p = np.array([[0, 0, 0], [2, 0, 0], [0, 3, 0], [0, 0, 4.0]])
     assert signed_volumes_mm3(p, np.array([[0, 1, 2, 3]]))[0] == pytest.approx(4.0)
+
+
+def test_compact_points_drops_unused_points_and_keeps_geometry():
+    """Unused points (spread among the used ones) go; every cell keeps its corner coordinates
+    and signed volume; the kept ids index per-point data; the points' order is kept."""
+    mesh = box_mesh([0, 0, 0], [6, 4, 2], (3, 2, 1))
+    rng = np.random.default_rng(3)
+    extra = rng.uniform(-5, 5, (7, 3))
+    order = rng.permutation(mesh.n_points + len(extra))  # position of each point in the file
+    points = np.empty((len(order), 3))
+    points[order] = np.concatenate([mesh.points_mm, extra])
+    tets = order[mesh.tets]
+    kept, cells, ids = compact_points(points, tets)
+    assert len(kept) == mesh.n_points and cells.dtype == np.intp and np.all(np.diff(ids) > 0)
+    np.testing.assert_array_equal(kept[cells], points[tets])
+    np.testing.assert_array_equal(kept, points[ids])
+    np.testing.assert_allclose(signed_volumes_mm3(kept, cells), mesh.signed_volumes_mm3)

@@ -12,7 +12,7 @@ import pytest
 from tetdose.errors import ImageError, MeshError
 from tetdose.image import Image, ImageGrid
 from tetdose.io import read_mesh, write_image
-from tetdose.mesh import FACE_VERTICES, TetMesh
+from tetdose.mesh import FACE_VERTICES, TetMesh, signed_volumes_mm3
 from tetdose.meshing import levelset
 from tetdose.meshing.distance import signed_distance
 from tetdose.meshing.labels import as_label_array, body_mask, default_sizes_mm
@@ -205,7 +205,7 @@ def test_volume_shift_recovers_a_plane_offset() -> None:
 
     pts = _tetgrid.grid_nodes(np.zeros(3), np.full(3, 0.25), (4, 4, 4))
     tets = _tetgrid.grid_tets((4, 4, 4))
-    vols = np.abs(_tetgrid.signed_volumes(pts, tets))
+    vols = np.abs(signed_volumes_mm3(pts, tets))
     f = (pts[:, 0] - 0.2)[tets]
     assert levelset.volume_shift(f, vols, 0.5, 0.1) == pytest.approx(0.3, abs=1e-4)
 

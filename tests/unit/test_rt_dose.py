@@ -166,3 +166,43 @@ def test_bad_input_raises_dicom_error(tmp_path):
     with pytest.raises(DicomError, match="not supported"):
         write_rt_dose(dose, tmp_path / "x.dcm", summation_type="BEAM", **kw)
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize(("unit", "units"), [("Gy", "GY"), ("Gy per fraction", "GY"),
+                                             ("Gy per source photon", "RELATIVE")])
+def test_dose_units_follow_the_dose_unit(tmp_path, unit, units):
+    """An unprescribed dose (Gy per source photon) is not an absolute dose: DoseUnits RELATIVE
+    (PS3.3 C.8.8.3 allows GY or RELATIVE), and the comment and description say per photon."""
+    dose = make_dose()
+    with pytest.warns(UserWarning, match="Frame of Reference"):
+        path = write_rt_dose(dose, tmp_path / "d.dcm", unit=unit)
+    ds = pydicom.dcmread(path)
+    assert ds.DoseUnits == units and ds.DoseComment == f"dose in {unit}"
+    assert ("source photon" in ds.SeriesDescription) == (units == "RELATIVE")
+    np.testing.assert_allclose(read_dose(path).array, dose.array,
+                               atol=float(ds.DoseGridScaling) / 2)
+
+
+def test_unknown_dose_unit_is_refused(tmp_path):
+    with pytest.raises(DicomError, match="dose unit 'cGy' is unknown"):
+        write_rt_dose(make_dose(), tmp_path / "d.dcm", unit="cGy", frame_of_reference_uid="1.2.3")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_export_dose_of_an_unprescribed_dose_is_relative(tmp_path, ct_folder):
+    """tetdose export-dose reads the unit from the run record beside the dose (none: per photon)."""
+    import json
+
+    from tetdose.cli import main
+    from tetdose.io import write_image
+
+    grid = Image.from_sitk(sitk.ReadImage(
+        sitk.ImageSeriesReader.GetGDCMSeriesFileNames(str(ct_folder)))).grid
+    write_image(tmp_path / "dose.nrrd", Image(np.ones(grid.shape, np.float32), grid))
+    assert main(["export-dose", "--dose", str(tmp_path / "dose.nrrd"), "--like", str(ct_folder),
+                 "-o", str(tmp_path / "photon.dcm")]) == 0
+    assert pydicom.dcmread(tmp_path / "photon.dcm").DoseUnits == "RELATIVE"
+    (tmp_path / "dose.json").write_text(json.dumps({"units": {"dose": "Gy per fraction"}}))
+    assert main(["export-dose", "--dose", str(tmp_path / "dose.nrrd"), "--like", str(ct_folder),
+                 "-o", str(tmp_path / "fraction.dcm")]) == 0
+    assert pydicom.dcmread(tmp_path / "fraction.dcm").DoseUnits == "GY"

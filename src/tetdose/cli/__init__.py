@@ -47,7 +47,11 @@ COMMANDS = {
 
 #: Commands whose -o is a folder replaced as a whole: they all take --overwrite (a command's
 #: module may add it itself through cli._common.add_output_args).
-FOLDER_OUTPUTS = ("deform", "4dct", "compare", "dose4d", "demo", "phantom")
+FOLDER_OUTPUTS = ("deform", "register", "4dct", "compare", "dose4d", "demo", "phantom")
+
+#: Commands that read a CT: they take --resample-tilted (see tetdose.io.tilted_policy).
+CT_READERS = ("map", "voxelize", "evaluate", "deform", "register", "4dct", "dose", "export-dose",
+              "dose4d", "mesh")
 
 DESCRIPTION = ("CT density on deformable tetrahedral meshes: mass-conserving mapping, breathing "
                "phases, virtual 4D-CT and Monte Carlo photon dose.")
@@ -73,6 +77,11 @@ def build_parser() -> argparse.ArgumentParser:
                        help="show the full traceback of an error (for bug reports)")
         p.set_defaults(_module=module)
         importlib.import_module(module).add_args(p)
+        if name in CT_READERS:
+            p.add_argument("--resample-tilted", action="store_true",
+                           help="resample a DICOM CT series with a gantry tilt or sheared grid "
+                                "onto an orthogonal grid (linear, -1000 HU outside) instead of "
+                                "refusing it")
         if name in FOLDER_OUTPUTS and "--overwrite" not in p._option_string_actions:  # noqa: SLF001
             p.add_argument("--overwrite", action="store_true",
                            help="replace the output folder even if tetdose did not write it")
@@ -86,8 +95,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     except SystemExit as exc:  # --help, --version, or a usage error already printed
         return exc.code if isinstance(exc.code, int) else 2
     prefix = f"tetdose {args.command}"
+    from tetdose.io import tilted_policy
+
     try:
         with _one_line_warnings(prefix), \
+                tilted_policy(bool(getattr(args, "resample_tilted", False))), \
                 output_policy(inputs=_input_paths(args), force=bool(getattr(args, "overwrite",
                                                                             False))):
             return int(importlib.import_module(args._module).run(args))

@@ -62,6 +62,45 @@ def int_at_least(low: int) -> Callable[[str], int]:
     return parse
 
 
+#: Largest --histories accepted: every whole number up to 2**53 is exact in float64.
+MAX_HISTORIES = 2**53
+
+
+def count(text: str) -> int:
+    """argparse type: a whole number ≥ 1 written as an integer or a float (``1e7``), at most
+    :data:`MAX_HISTORIES` (NaN, infinity and fractions refused)."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not math.isfinite(value) or value != int(value) or not 1 <= value <= MAX_HISTORIES:
+        raise argparse.ArgumentTypeError(
+            f"expected a whole number from 1 to {MAX_HISTORIES:.3g} (e.g. 1e6), got {text!r}")
+    return int(value)
+
+
+def float_in(low: float, high: float = math.inf, *, low_open: bool = False,
+             high_open: bool = False) -> Callable[[str], float]:
+    """argparse type: a finite number in [low, high]; ``low_open``/``high_open`` exclude the
+    ends."""
+    left, right = "(" if low_open else "[", ")" if high_open else "]"
+    span = f"> {low:g}" if high == math.inf and low_open else f"≥ {low:g}" \
+        if high == math.inf else f"in {left}{low:g}, {high:g}{right}"
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            value = math.nan
+        if not math.isfinite(value) or value < low or value > high or \
+                (low_open and value == low) or (high_open and value == high):
+            raise argparse.ArgumentTypeError(f"expected a finite number {span}, got {text!r}")
+        return value
+
+    parse.__name__ = f"number {span}"
+    return parse
+
+
 def density_or_word(words: Sequence[str]) -> Callable[[str], str | float]:
     """argparse type: one of ``words`` or a finite density ≥ 0 [g/cm³]."""
 

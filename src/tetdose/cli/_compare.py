@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from tetdose.cli._common import check_output, float_in, int_at_least
 from tetdose.errors import TetdoseError
 
 MESH_SUFFIXES = (".vtu", ".vtk", ".xdmf", ".msh")
@@ -36,9 +37,9 @@ def add_args(parser: argparse.ArgumentParser) -> None:
                         help="label image (0 = background) or a DICOM RTSTRUCT file")
     parser.add_argument("--reference", choices=("voxel", "mesh"), default="voxel",
                         help="which dose is the gamma reference (default voxel)")
-    parser.add_argument("--threshold", type=float, default=10.0,
+    parser.add_argument("--threshold", type=float_in(0.0, 100.0, high_open=True), default=10.0,
                         help="gamma low-dose threshold [%% of the reference maximum]")
-    parser.add_argument("--gamma-max-points", type=int, default=200_000,
+    parser.add_argument("--gamma-max-points", type=int_at_least(1), default=200_000,
                         help="evaluate gamma on a seeded random sample of at most this many "
                              "points above the threshold (pass rate ± its standard error)")
     parser.add_argument("-o", "--output", required=True, type=Path, help="report folder")
@@ -71,6 +72,7 @@ def _run_compare(args: argparse.Namespace) -> int:
     )
     from tetdose.io import read_image
 
+    check_output(args, folder=True)
     mesh_path = _find(args.mesh_dose, "accumulated", MESH_SUFFIXES, "mesh")
     mesh, dose = read_mesh_dose(mesh_path)
     voxel = read_image(_find(args.voxel_dose, "accumulated", (".nrrd", ".mha", ".nii.gz"),
@@ -96,13 +98,14 @@ def _run_export(args: argparse.Namespace) -> int:
     from tetdose.io import read_image
     from tetdose.transfer import dose_on_grid
 
+    check_output(args, suffixes=(".dcm",))
     grid = read_image(args.like).grid
     if args.dose.suffix.lower() in MESH_SUFFIXES:
         img = dose_on_grid(read_mesh_dose(args.dose), grid)
     else:
         img = dose_on_grid(read_image(args.dose), grid, what=str(args.dose))
     reference = args.like if args.like.is_dir() else None
-    write_rt_dose(img, args.output, reference_ct=reference, bits=args.bits)
-    print(f"RT Dose {grid.size}, max {img.array.max():.4g} {recorded_dose_unit(args.dose)} "
-          f"→ {args.output}")
+    unit = recorded_dose_unit(args.dose)
+    write_rt_dose(img, args.output, reference_ct=reference, bits=args.bits, unit=unit)
+    print(f"RT Dose {grid.size}, max {img.array.max():.4g} {unit} → {args.output}")
     return 0

@@ -17,7 +17,14 @@ from typing import Any
 
 import numpy as np
 
-from tetdose.cli._common import add_calibration_arg, calibration_from
+from tetdose.cli._common import (
+    add_calibration_arg,
+    calibration_from,
+    count,
+    float_in,
+    int_at_least,
+    read_mapped_mesh,
+)
 from tetdose.errors import PlanError
 from tetdose.transport.model import ESTIMATORS
 
@@ -35,12 +42,8 @@ def add_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--rtplan", type=Path,
                         help="DICOM RT Plan: its photon beams are added to --plan's (or used "
                              "alone)")
-    parser.add_argument("--histories", type=float, default=1e6, help="source photons (e.g. 1e7)")
-    parser.add_argument("--seed", type=int, default=1, help="master random seed")
-    parser.add_argument("--batches", type=int, default=10, help="independent batches (for σ)")
-    parser.add_argument("--estimator", choices=ESTIMATORS,
-                        default="track_length", help="dose tally (default: track_length)")
-    parser.add_argument("--cutoff-mev", type=float, default=0.01,
+    add_run_args(parser)
+    parser.add_argument("--cutoff-mev", type=float_in(0.0, 20.0, low_open=True), default=0.01,
                         help="photon energy cut-off, deposited locally [MeV]")
     add_calibration_arg(parser)
     parser.add_argument("--labels", type=Path, help="label image for --ct (region → [materials])")
@@ -48,6 +51,18 @@ def add_args(parser: argparse.ArgumentParser) -> None:
                         help="dose.vtu (with --mesh, also with --ct) or dose.nrrd / .mha / "
                              ".nii.gz (--ct alone)")
     add_dask_arg(parser)
+
+
+def add_run_args(parser: argparse.ArgumentParser, per: str = "") -> None:
+    """``--histories``, ``--seed``, ``--batches``, ``--estimator`` (shared with ``dose4d``),
+    range-checked at parse time."""
+    parser.add_argument("--histories", type=count, default=1e6,
+                        help=f"source photons{per} (e.g. 1e7)")
+    parser.add_argument("--seed", type=int_at_least(0), default=1, help="master random seed")
+    parser.add_argument("--batches", type=int_at_least(2), default=10,
+                        help="independent batches (≥ 2, for σ)")
+    parser.add_argument("--estimator", choices=ESTIMATORS,
+                        default="track_length", help="dose tally (default: track_length)")
 
 
 def add_dask_arg(parser: argparse.ArgumentParser) -> None:
@@ -101,7 +116,7 @@ def _write_images(result: Any, output: Path) -> list[str]:  # noqa: ANN401
 
 
 def run(args: argparse.Namespace) -> int:
-    from tetdose.io import read_image, read_mesh, write_image, write_mesh
+    from tetdose.io import read_ct, read_image, write_image, write_mesh
     from tetdose.prescription import prescribe_result
     from tetdose.transport import TransportSettings, World
     from tetdose.transport.distributed import simulate_on
@@ -109,8 +124,6 @@ def run(args: argparse.Namespace) -> int:
     if args.mesh is None and args.ct is None:
         raise PlanError("give --mesh (a mapped mesh), --ct (a CT), or both (the mesh inside "
                         "the CT)")
-    if args.histories != int(args.histories) or args.histories < 1:
-        raise PlanError(f"--histories must be a positive whole number, got {args.histories:g}")
     is_mesh_out = args.output.suffix.lower() in MESH_SUFFIXES
     if args.mesh is not None and not is_mesh_out:
         raise PlanError(f"with --mesh the output must be a mesh file (.vtu), got {args.output}")
@@ -124,10 +137,10 @@ def run(args: argparse.Namespace) -> int:
     progress = False if args.quiet else None
     extra: dict[str, object] = {"plan": str(args.plan), "rtplan": str(args.rtplan),
                                 "dask": args.dask}
-    mesh = read_mesh(args.mesh) if args.mesh is not None else None
+    mesh = read_mapped_mesh(args.mesh) if args.mesh is not None else None
     density = labels = None
     if args.ct is not None:
-        ct = read_image(args.ct)
+        ct = read_ct(args.ct)
         cal = calibration_from(args)
         density = ct.with_array(cal.density(ct.array).astype(np.float64))
         labels = read_image(args.labels) if args.labels else None

@@ -5,28 +5,23 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from tetdose.cli._common import add_calibration_arg, calibration_from
-from tetdose.cli._dose import add_dask_arg, dask_context
+from tetdose.cli._common import add_calibration_arg, calibration_from, check_output, int_at_least
+from tetdose.cli._dose import add_dask_arg, add_run_args, dask_context
 from tetdose.dose4d import run_dose4d, write_dose4d
 from tetdose.errors import OptionError
-from tetdose.io import read_image
+from tetdose.io import read_ct
 from tetdose.motion.ct4d_read import find_phase, read_4dct
 from tetdose.motion.dvf import read_dvf
 from tetdose.motion.phases import PhaseSeries
 from tetdose.prescription import PER_PHOTON_UNIT
 from tetdose.transport import Plan, TransportSettings
-from tetdose.transport.model import ESTIMATORS
 
 
 def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--phases", type=Path, required=True,
                    help="folder written by `tetdose deform` (phase VTUs + phases.pvd)")
     p.add_argument("--plan", type=Path, required=True, help="plan.toml (beams, materials)")
-    p.add_argument("--histories", type=float, default=1e6, help="source photons per phase")
-    p.add_argument("--seed", type=int, default=1, help="master random seed")
-    p.add_argument("--batches", type=int, default=10, help="independent batches (for σ)")
-    p.add_argument("--estimator", choices=ESTIMATORS, default="track_length",
-                   help="dose tally (default: track_length)")
+    add_run_args(p, " per phase")
     p.add_argument("--like", type=Path,
                    help="reference CT: every phase's mesh runs inside the phase's body (the "
                         "hybrid world), and the voxel-only dose on the same body is accumulated "
@@ -41,16 +36,17 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("-o", "--output", type=Path, required=True, help="output folder")
     add_calibration_arg(p)
     add_dask_arg(p)
-    p.add_argument("--batches-per-task", type=int, default=1,
+    p.add_argument("--batches-per-task", type=int_at_least(1), default=1,
                    help="with --dask: batches per dask task (default 1)")
 
 
 def run(args: argparse.Namespace) -> int:
+    check_output(args, folder=True)
     series = PhaseSeries.read(None, args.phases)
     plan = Plan.from_toml(args.plan)
     settings = TransportSettings(n_histories=int(args.histories), n_batches=args.batches,
                                  seed=args.seed, estimator=args.estimator)
-    ct = read_image(args.like) if args.like else None
+    ct = read_ct(args.like) if args.like else None
     if args.dvf and ct is None:
         raise OptionError("--dvf warps the reference CT of --like; give --like too")
     if args.dvf and args.ct4d:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 from pathlib import Path
 
 from tetdose.errors import TetdoseError
@@ -45,11 +46,14 @@ def parse_sizes(text: str | None) -> float | dict[int, float] | None:
     if text is None:
         return None
     try:
-        if "=" not in text:
-            return float(text)
-        return {int(k): float(v) for k, v in (item.split("=") for item in text.split(","))}
+        sizes = float(text) if "=" not in text else \
+            {int(k): float(v) for k, v in (item.split("=") for item in text.split(","))}
     except ValueError as exc:
         raise TetdoseError(f"cannot read --size-mm {text!r}; write 6 or 2=8,3=3") from exc
+    values = list(sizes.values()) if isinstance(sizes, dict) else [sizes]
+    if not all(math.isfinite(v) and v > 0 for v in values):
+        raise TetdoseError(f"--size-mm {text!r}: target edges must be finite and > 0 mm")
+    return sizes
 
 
 def _inputs(args: argparse.Namespace):  # noqa: ANN202 - (Image, list[int] | None, names)
@@ -86,11 +90,13 @@ def _inputs(args: argparse.Namespace):  # noqa: ANN202 - (Image, list[int] | Non
 
 def run(args: argparse.Namespace) -> int:
     from tetdose._atomic import atomic_write_file
-    from tetdose.io import write_mesh
+    from tetdose.cli._common import check_output
+    from tetdose.io import MESH_SUFFIXES, write_mesh
     from tetdose.meshing import conforming_mesh, mesh_checks, mesh_label_image
 
-    labels, ids, names = _inputs(args)
+    check_output(args, suffixes=MESH_SUFFIXES)
     sizes = parse_sizes(args.size_mm)
+    labels, ids, names = _inputs(args)
     if args.mesher == "mmg":
         smooth = 0.75 if args.smooth is None else args.smooth
         mesh = conforming_mesh(labels, ids, sizes, smoothing_vox=smooth)

@@ -1,7 +1,9 @@
 """``tetdose deform`` (breathing phases with mass-conserving density) and ``tetdose 4dct``.
 
 Both subcommands live here; ``add_args`` tells them apart by the subparser's name (the last
-word of ``parser.prog``) and records it for ``run``.
+word of ``parser.prog``) and records it for ``run``. Argument parsing and printing only: the
+motion source and the mass report are :mod:`tetdose.motion.source`, the virtual 4D-CT
+:mod:`tetdose.motion.ct4d`.
 """
 
 from __future__ import annotations
@@ -11,6 +13,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from tetdose._atomic import atomic_write_dir
+from tetdose.cli._common import density_or_word, float_in, int_at_least, read_mapped_mesh
 
 if TYPE_CHECKING:
     from tetdose.mesh import TetMesh
@@ -46,18 +49,23 @@ def _add_deform_args(p: argparse.ArgumentParser) -> None:
                      help="real 4D-CT: register every phase to --reference, then deform")
     p.add_argument("--reference", type=float, metavar="PERCENT",
                    help="--4dct: reference phase [%%], the CT the mesh was mapped from")
-    p.add_argument("--amplitude-mm", type=float, default=10.0,
+    p.add_argument("--amplitude-mm", type=float_in(0.0), default=10.0,
                    help="breathing: cranio-caudal amplitude at the diaphragm [mm]")
-    p.add_argument("--period-s", type=float, default=4.0, help="breathing: period [s]")
-    p.add_argument("--n-phases", type=int, default=10, help="breathing: number of phases")
-    p.add_argument("--shape-n", type=int, default=3, help="breathing: exponent n of cos^2n")
-    p.add_argument("--phase-percent", nargs="+", type=float,
+    p.add_argument("--period-s", type=float_in(0.0, low_open=True), default=4.0,
+                   help="breathing: period [s]")
+    p.add_argument("--n-phases", type=int_at_least(1), default=10,
+                   help="breathing: number of phases")
+    p.add_argument("--shape-n", type=int_at_least(1), default=3,
+                   help="breathing: exponent n of cos^2n")
+    p.add_argument("--phase-percent", nargs="+", type=float_in(0.0, 100.0),
                    help="phase positions in the cycle [%%] (default 100·k/K)")
     p.add_argument("--method", choices=("l2", "lsq"), default="l2",
                    help="density update: mass-conserving L2 projection or the paper's LSQ")
-    p.add_argument("--increments", type=int, default=4, help="FEM load increments")
-    p.add_argument("--young-kpa", type=float, default=7.8, help="FEM Young's modulus [kPa]")
-    p.add_argument("--poisson", type=float, default=0.45, help="FEM Poisson's ratio")
+    p.add_argument("--increments", type=int_at_least(1), default=4, help="FEM load increments")
+    p.add_argument("--young-kpa", type=float_in(0.0, low_open=True), default=7.8,
+                   help="FEM Young's modulus [kPa]")
+    p.add_argument("--poisson", type=float_in(0.0, 0.4999), default=0.45,
+                   help="FEM Poisson's ratio")
     p.add_argument("-o", "--output", required=True, type=Path,
                    help="output folder: one VTU per phase + phases.pvd + mass_report.csv "
                    "(with --4dct also dvf/: the fields and register.json)")
@@ -72,7 +80,7 @@ def _add_4dct_args(p: argparse.ArgumentParser) -> None:
                    help="reference CT (DICOM folder or image file): grid and outside tissue")
     p.add_argument("-o", "--output", required=True, type=Path, help="output folder")
     p.add_argument("--format", choices=("dicom", "nrrd"), default="dicom")
-    p.add_argument("--background", default="ct",
+    p.add_argument("--background", default="ct", type=density_or_word(("ct", "air")),
                    help="outside the mesh: 'ct' (reference CT), 'air' or a density [g/cm³]")
     p.add_argument("--dvf", nargs="+", type=Path, metavar="IMAGE",
                    help="one DVF per phase: also warp the CT outside the mesh")
@@ -81,57 +89,41 @@ def _add_4dct_args(p: argparse.ArgumentParser) -> None:
 
 
 def _motion_series(args: argparse.Namespace, reference: TetMesh, out_dir: Path) -> PhaseSeries:
-    import numpy as np
-
+    """The source the options name (``--4dct``: registered into ``out_dir/dvf`` first)."""
     from tetdose.cli._register import percents_of, print_reports, register_to
-    from tetdose.errors import TetdoseError
-    from tetdose.motion import BreathingModel, PhaseSeries, read_dvf
+    from tetdose.errors import OptionError, TetdoseError
+    from tetdose.motion import BreathingModel
+    from tetdose.motion.source import FemOptions, check_reference, phase_series
 
     pct = args.phase_percent
+    dvfs = args.dvf
     if args.ct4d:
         if args.reference is None:
-            raise TetdoseError("--4dct needs --reference PERCENT: the phase the mesh was mapped from")
-        files, percents, reports = register_to(args, out_dir / "dvf")
+            raise OptionError("--4dct needs --reference PERCENT: the phase the mesh was mapped "
+                              "from")
+        check_reference(reference)  # before the registration's minutes
+        dvfs, percents, reports = register_to(args, out_dir / "dvf")
         if print_reports(reports, "deform"):
             raise TetdoseError("a registered field folds (see above); the mesh was not deformed — "
                                "raise --smoothing-mm or give a --mask")
-        args.dvf, pct = files, (percents if pct is None else pct)
-    elif args.dvf and pct is None:
-        pct = percents_of(list(args.dvf))
-    if args.breathing:
-        model = BreathingModel(args.amplitude_mm, args.period_s, args.shape_n)
-        return model.series(reference, args.n_phases)
-    if args.phases:
-        return PhaseSeries.read(reference, args.phases, phase_percent=pct)
-    if args.dvf:
-        pts = [read_dvf(f).moved(reference.points_mm) for f in args.dvf]
-    else:
-        from tetdose.motion.fem import surface_driven_points
-        from tetdose.motion.surface import read_surface
-
-        pts = [surface_driven_points(reference, read_surface(f), n_increments=args.increments,
-                                     young_kpa=args.young_kpa, poisson=args.poisson)
-               for f in args.surfaces]
-    return PhaseSeries(reference, np.stack(pts), pct)
+        pct = percents if pct is None else pct
+    elif dvfs and pct is None:
+        pct = percents_of(list(dvfs))
+    breathing = (BreathingModel(args.amplitude_mm, args.period_s, args.shape_n)
+                 if args.breathing else None)
+    return phase_series(reference, phases=args.phases, dvfs=dvfs, surfaces=args.surfaces,
+                        breathing=breathing, n_phases=args.n_phases, phase_percent=pct,
+                        fem=FemOptions(args.increments, args.young_kpa, args.poisson))
 
 
 def _run_deform(args: argparse.Namespace) -> int:
-    from tetdose.io import read_mesh
-    from tetdose.motion import update_series
-    from tetdose.motion.conserve import reference_density
+    from tetdose.motion.source import deform, mass_report_csv
 
-    reference = read_mesh(args.mesh)
-    rho0 = reference_density(reference)
+    reference = read_mapped_mesh(args.mesh)
     with atomic_write_dir(args.output) as tmp:
-        series, reports = update_series(_motion_series(args, reference, tmp), rho0,
-                                        method=args.method)
+        series, reports = deform(_motion_series(args, reference, tmp), method=args.method)
         series.write(tmp)
-        rows = ["phase_percent,time_weight,total_mass_g,mass_change_rel,min_density_g_cm3,"
-                "max_density_g_cm3,worst_volume_change"]
-        rows += [f"{r.phase_percent!r},{w!r},{r.total_mass_g!r},{r.mass_change_rel!r},"
-                 f"{r.min_density_g_cm3!r},{r.max_density_g_cm3!r},{r.worst_volume_change!r}"
-                 for r, w in zip(reports, series.time_weight, strict=True)]
-        (tmp / "mass_report.csv").write_text("\n".join(rows) + "\n")
+        (tmp / "mass_report.csv").write_text(mass_report_csv(series, reports))
     for r in reports:
         print(r.line())
     print(f"wrote {series.n_phases} phases ({args.method}) to {args.output}")
@@ -139,18 +131,16 @@ def _run_deform(args: argparse.Namespace) -> int:
 
 
 def _run_4dct(args: argparse.Namespace) -> int:
-    from tetdose.io import read_image
+    from tetdose.cli._common import check_output
+    from tetdose.io import read_ct, read_image
     from tetdose.motion import PhaseSeries, read_dvf
     from tetdose.motion.ct4d import virtual_4dct, write_4dct
 
+    check_output(args, folder=True)
     series = PhaseSeries.read(None, args.phases)
-    try:
-        background: str | float = float(args.background)
-    except ValueError:
-        background = args.background
     dvfs = None if args.dvf is None else [read_dvf(f) for f in args.dvf]
-    ct = read_image(args.like)
-    images = virtual_4dct(series, ct, background=background, dvfs=dvfs, partial=args.partial,
+    ct = read_ct(args.like) if args.background == "ct" or dvfs else read_image(args.like)
+    images = virtual_4dct(series, ct, background=args.background, dvfs=dvfs, partial=args.partial,
                           progress=not args.quiet)
     out = write_4dct(images, args.output, phase_percent=series.phase_percent, fmt=args.format,
                      reference=args.like)

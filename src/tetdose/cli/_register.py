@@ -31,6 +31,7 @@ def add_args(p: argparse.ArgumentParser) -> None:
 
 def add_registration_args(p: argparse.ArgumentParser) -> None:
     """Options shared with ``deform --4dct``."""
+    from tetdose.cli._common import float_in, int_at_least
     from tetdose.motion.register import METHODS, RegistrationSettings
 
     d = RegistrationSettings()
@@ -39,15 +40,16 @@ def add_registration_args(p: argparse.ArgumentParser) -> None:
                    "(default: the body, HU > -400, slice-wise convex hull)")
     p.add_argument("--registration", dest="reg_method", choices=METHODS, default=d.method,
                    help="symmetric-forces demons (default: measured faster and more accurate) or B-spline")
-    p.add_argument("--smoothing-mm", type=float, default=d.smoothing_mm,
+    p.add_argument("--smoothing-mm", type=float_in(0.0, low_open=True), default=d.smoothing_mm,
                    help="demons: Gaussian σ of the field [mm]")
-    p.add_argument("--grid-spacing-mm", type=float, default=d.grid_spacing_mm,
+    p.add_argument("--grid-spacing-mm", type=float_in(0.0, low_open=True),
+                   default=d.grid_spacing_mm,
                    help="B-spline: control-point spacing at the finest level [mm]")
-    p.add_argument("--shrink", type=int, nargs="+", default=list(d.shrink),
+    p.add_argument("--shrink", type=int_at_least(1), nargs="+", default=list(d.shrink),
                    help="pyramid shrink factors, coarse → fine")
-    p.add_argument("--iterations", type=int, nargs="+", default=list(d.iterations),
+    p.add_argument("--iterations", type=int_at_least(1), nargs="+", default=list(d.iterations),
                    help="iterations per pyramid level")
-    p.add_argument("--threads", type=int, help="SimpleITK threads (default: all cores)")
+    p.add_argument("--threads", type=int_at_least(1), help="SimpleITK threads (default: all cores)")
     p.add_argument("--inverse-consistency", action="store_true",
                    help="also register phase → reference and report |u(x) + w(x + u(x))| (2× time)")
 

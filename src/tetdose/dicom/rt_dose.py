@@ -54,6 +54,9 @@ if TYPE_CHECKING:
 
 #: Summation types written; others need fraction/beam references tetdose does not have.
 SUMMATION_TYPES = ("PLAN",)
+#: DoseUnits (PS3.3 C.8.8.3: GY or RELATIVE) by the dose's unit: an unprescribed Monte Carlo dose
+#: is in Gy per source photon, which is not an absolute dose, so it is written as RELATIVE.
+DOSE_UNITS = {"Gy": "GY", "Gy per fraction": "GY", "Gy per source photon": "RELATIVE"}
 
 
 def rt_plan_path(dose_path: str | Path) -> Path:
@@ -76,8 +79,13 @@ def write_rt_dose(
     series_description: str = "tetdose Monte Carlo dose",
     uid_prefix: str | None = DEFAULT_PREFIX,
     plan: Plan | None = None,
+    unit: str = "Gy",
 ) -> Path:
     """Write ``dose_gy`` [Gy] as an RT Dose file at ``path`` (atomically); return ``path``.
+
+    ``unit``: what the values are, a key of :data:`DOSE_UNITS`. "Gy per source photon" (an
+    unprescribed dose) is written with DoseUnits RELATIVE, and DoseComment and the series
+    description say per source photon; "Gy" and "Gy per fraction" with DoseUnits GY.
 
     ``plan``: with linac beams, the RT Plan written beside the dose holds them
     (:mod:`tetdose.dicom.rt_plan`) instead of the beamless placeholder.
@@ -93,10 +101,15 @@ def write_rt_dose(
         raise DicomError(f"DoseSummationType {summation_type!r} is not supported; use 'PLAN'")
     if bits not in (16, 32):
         raise DicomError(f"bits must be 16 or 32, got {bits}")
+    if unit not in DOSE_UNITS:
+        raise DicomError(f"dose unit {unit!r} is unknown; use one of {sorted(DOSE_UNITS)}")
+    if DOSE_UNITS[unit] == "RELATIVE":
+        series_description = f"{series_description} ({unit})"
     if reference_ct is None and frame_of_reference_uid is None:
         warnings.warn(
             "no reference_ct or frame_of_reference_uid: the RT Dose gets a new Frame of "
-            "Reference and cannot be overlaid on the CT; pass reference_ct=",
+            "Reference and cannot be overlaid on the CT; give the CT's DICOM series folder "
+            "(export-dose --like, or reference_ct=)",
             stacklevel=2,
         )
     digest = image_digest(dose_gy)
@@ -124,6 +137,8 @@ def write_rt_dose(
                 _write_plan_stub(plan_tmp, ctx, plan_uid, series_number + 1)
         dose_tmp = stack.enter_context(atomic_write_file(path))
         ds = _dose_dataset(dose_gy, ctx, series_uid, series_number, series_description, bits)
+        ds.DoseUnits = DOSE_UNITS[unit]
+        ds.DoseComment = f"dose in {unit}"
         ds.DoseSummationType = summation_type
         ref = Dataset()
         ref.ReferencedSOPClassUID = RTPlanStorage
@@ -188,7 +203,6 @@ def _dose_dataset(
     set_pixel_format(ds, grid, bits, signed=False)
     ds.NumberOfFrames = grid.size[2]  # Multi-frame
     ds.FrameIncrementPointer = Tag(0x3004, 0x000C)
-    ds.DoseUnits = "GY"  # RT Dose
     ds.DoseType = "PHYSICAL"
     ds.GridFrameOffsetVector = ds_values(np.arange(grid.size[2]) * grid.spacing_mm[2])
     ds.DoseGridScaling = scaling

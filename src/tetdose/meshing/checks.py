@@ -18,6 +18,7 @@ from collections.abc import Iterable
 
 import numpy as np
 
+from tetdose._constants import MM3_PER_CM3
 from tetdose._typing import FloatArray
 from tetdose.image import Image
 from tetdose.mesh import FACE_VERTICES, TetMesh
@@ -78,8 +79,8 @@ def mesh_checks(mesh: TetMesh, labels: Image, label_ids: Iterable[int] | None = 
         mask = arr == lab
         voxel_mm3 = float(np.count_nonzero(mask)) * vox
         mesh_mm3 = float(mesh.volumes_mm3[in_lab].sum())
-        entry = {"tets": int(in_lab.sum()), "volume_cm3": mesh_mm3 / 1000.0,
-                 "voxel_volume_cm3": voxel_mm3 / 1000.0,
+        entry = {"tets": int(in_lab.sum()), "volume_cm3": mesh_mm3 / MM3_PER_CM3,
+                 "voxel_volume_cm3": voxel_mm3 / MM3_PER_CM3,
                  "volume_error_pct": 100.0 * (mesh_mm3 / voxel_mm3 - 1.0) if voxel_mm3 else None}
         if in_lab.any():
             a = angles[in_lab]

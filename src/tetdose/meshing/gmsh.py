@@ -41,7 +41,7 @@ from tetdose._optional import import_optional
 from tetdose._typing import FloatArray, IntArray
 from tetdose.errors import ImageError, MeshError
 from tetdose.image import Image
-from tetdose.mesh import TetMesh
+from tetdose.mesh import TetMesh, compact_points
 
 #: Feature angle for ``classifySurfaces``: π keeps marching-cubes staircase steps from being
 #: taken as sharp edges (a smaller angle splits a voxelised sphere into hundreds of patches).
@@ -282,7 +282,8 @@ def mesh_label_image(labels: Image, label_ids: Iterable[int] | None = None,
     if not tets:
         raise MeshError(f"labels {ids.tolist()} gave no tetrahedra at target_edge_mm={h}; "
                         "lower the target size")
-    mesh = _compacted(np.concatenate(points), np.concatenate(tets), np.concatenate(region))
+    kept, cells, _ = compact_points(np.concatenate(points), np.concatenate(tets))
+    mesh = TetMesh(kept, cells, np.concatenate(region))  # gmsh keeps the surface's nodes too
     mesh = mesh.with_fixed_orientation()
     mesh.check_cells(context="in the gmsh label mesh")
     return mesh
@@ -310,9 +311,3 @@ def touching_pairs(arr: np.ndarray, ids: np.ndarray) -> list[tuple[int, int]]:
         near = np.unique(arr[ndimage.binary_dilation(arr == a)])
         pairs += [(a, int(b)) for b in near if b > a and b in ids]
     return pairs
-
-
-def _compacted(points: FloatArray, tets: IntArray, region: IntArray) -> TetMesh:
-    """Drop the points no tetrahedron uses (gmsh keeps the discrete input surface's nodes)."""
-    used, new_ids = np.unique(tets, return_inverse=True)
-    return TetMesh(points[used], new_ids.reshape(-1, 4), region)

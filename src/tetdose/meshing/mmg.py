@@ -42,7 +42,7 @@ from tetdose._optional import import_optional
 from tetdose._typing import FloatArray, IntArray
 from tetdose.errors import MeshError
 from tetdose.image import Image
-from tetdose.mesh import TetMesh, signed_volumes_mm3
+from tetdose.mesh import TetMesh, compact_points, signed_volumes_mm3
 from tetdose.meshing import levelset
 from tetdose.meshing.distance import DistanceField, signed_distance
 from tetdose.meshing.labels import checked_label_ids, default_sizes_mm
@@ -222,7 +222,7 @@ def _cut_labels(mmgpy, points: FloatArray, tets: IntArray, phi: _Fields,  # noqa
         raise MeshError(f"label(s) {missing} vanished in the level-set discretisation; give "
                         "them a smaller target size (--size-mm L=H)")
     keep = refs != out
-    points, tets = _tetgrid.compact(points, tets[keep])
+    points, tets, _ = compact_points(points, tets[keep])
     return points, tets, refs[keep]
 
 
@@ -249,7 +249,7 @@ def _remeshed(mmgpy, points: FloatArray, tets: IntArray, refs: IntArray,  # noqa
                         "(--size-mm)") from error
     p = np.asarray(mesh.get_vertices(), dtype=np.float64)
     t, r = (np.asarray(a) for a in mesh.get_tetrahedra_with_refs())
-    p, tt = _tetgrid.compact(p, t.astype(np.intp))
+    p, tt, _ = compact_points(p, t.astype(np.intp))
     oriented = TetMesh(p, tt, r.astype(np.int64)).with_fixed_orientation()
     p = removed_slivers(oriented.points_mm, oriented.tets, oriented.region, MIN_DIHEDRAL_DEG)
     result = oriented.moved(p)

@@ -30,6 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tetdose._checks import check_density
 from tetdose._constants import MM3_PER_CM3
 from tetdose._typing import FloatArray
 from tetdose.errors import MeshError, TetdoseError
@@ -71,14 +72,15 @@ def mesh_mass_g(mesh: TetMesh, density_g_cm3: FloatArray) -> float:
 
 
 def reference_density(mesh: TetMesh) -> FloatArray:
-    """The reference vertex density (point_data ``density``) [g/cm³], checked."""
+    """The reference vertex density (point_data ``density``) [g/cm³], checked finite and ≥ 0."""
     if DENSITY not in mesh.point_data:
         raise MeshError(f"the reference mesh has no point_data {DENSITY!r}; map a CT onto it "
                         "first (`tetdose map`)")
     rho = np.asarray(mesh.point_data[DENSITY], dtype=np.float64).reshape(-1)
-    if len(rho) != mesh.n_points or not np.isfinite(rho).all():
-        raise MeshError(f"point_data {DENSITY!r} must hold one finite value per vertex")
-    return rho
+    if len(rho) != mesh.n_points:
+        raise MeshError(f"point_data {DENSITY!r} must hold one value per vertex")
+    return check_density(rho, what="reference vertex densities",
+                         fix="map the mesh again (`tetdose map`, default --solver l2)")
 
 
 def update_density(reference: TetMesh, density0_g_cm3: FloatArray, phase: TetMesh, *,

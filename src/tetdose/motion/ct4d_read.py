@@ -32,7 +32,7 @@ import numpy as np
 
 from tetdose.errors import ImageError
 from tetdose.image import Image
-from tetdose.io import read_dicom_files, read_image
+from tetdose.io import read_ct, read_dicom_files
 
 #: File name endings read as image files (not DICOM).
 IMAGE_SUFFIXES = (".nrrd", ".nhdr", ".mha", ".mhd", ".nii", ".nii.gz")
@@ -227,7 +227,7 @@ def _from_files(files: list[Path], *, sort_names: bool) -> list[Phase4D]:
     else:
         order = np.argsort(percents, kind="stable")
         files, percents = [files[i] for i in order], [percents[i] for i in order]
-    return [Phase4D(read_image(f), float(p), str(f))  # type: ignore[arg-type]
+    return [Phase4D(read_ct(f), float(p), str(f))  # type: ignore[arg-type]
             for f, p in zip(files, percents, strict=True)]
 
 

@@ -18,7 +18,7 @@ import numpy as np
 
 from tetdose.errors import ImageError, MeshError
 from tetdose.image import Image, ImageGrid
-from tetdose.mesh import TetMesh
+from tetdose.mesh import TetMesh, compact_points, signed_volumes_mm3
 from tetdose.phantoms import _shapes, _tetgrid
 
 #: Fraction of an edge by which the cube grid is shifted off the labelled region's voxel planes.
@@ -77,7 +77,7 @@ def snap_to_labels(nodes_q: np.ndarray, tets: np.ndarray, region: np.ndarray, ar
     """
     code = _tetgrid.surface_vertices(len(nodes_q), tets, region)
     n_codes = int(region.max()) + 2
-    vol0 = _tetgrid.signed_volumes(nodes_q, tets)
+    vol0 = signed_volumes_mm3(nodes_q, tets)
     for c in np.unique(code[code >= 0]):
         own, other = divmod(int(c), n_codes)
         phi = _blurred_indicator(arr == own if other >= 0 else np.isin(arr, ids))
@@ -135,11 +135,11 @@ def mesh_labels(labels: Image, label_ids: Iterable[int] | None = None, target_ed
     box = grid.bounds_grid_frame()
     nodes_q = np.clip(_tetgrid.grid_nodes(start, np.full(3, h), cells), box[0], box[1])
     tets = _tetgrid.grid_tets(cells, "kuhn")
-    vol = _tetgrid.signed_volumes(nodes_q, tets)
+    vol = signed_volumes_mm3(nodes_q, tets)
     centroids = grid.origin_mm + nodes_q[tets].mean(axis=1) @ grid.direction.T
     region = voxel_lookup(grid, arr, centroids)
     keep = np.isin(region, ids) & (vol > MIN_CELL_FRAC * h**3 / 6.0)
-    nodes_q, tets = _tetgrid.compact(nodes_q, tets[keep])
+    nodes_q, tets, _ = compact_points(nodes_q, tets[keep])
     region = region[keep]
     nodes_q = snap_to_labels(nodes_q, tets, region, arr, spacing, ids, h, snap_iterations)
     points = grid.origin_mm + nodes_q @ grid.direction.T

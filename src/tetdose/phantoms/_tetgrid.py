@@ -19,6 +19,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from tetdose.mesh import signed_volumes_mm3
+
 #: Local corner c of a cell sits at offset ((c >> 0) & 1, (c >> 1) & 1, (c >> 2) & 1).
 _CORNERS = np.array([[(c >> a) & 1 for a in range(3)] for c in range(8)], dtype=np.float64)
 #: Face i of a tetrahedron: the other three vertices (orientation irrelevant here).
@@ -75,21 +77,6 @@ def grid_tets(cells: tuple[int, int, int], scheme: str = "kuhn") -> np.ndarray:
     return per_cell.reshape(-1, 4)
 
 
-def signed_volumes(points: np.ndarray, tets: np.ndarray) -> np.ndarray:
-    """Signed volumes det[b − a, c − a, d − a] / 6."""
-    p = points[tets]
-    e1, e2, e3 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0], p[:, 3] - p[:, 0]
-    return np.einsum("ij,ij->i", e1, np.cross(e2, e3)) / 6.0
-
-
-def compact(points: np.ndarray, tets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Drop nodes no tetrahedron uses and renumber the cells (order of first node id kept)."""
-    used = np.unique(tets)
-    new_id = np.full(len(points), -1, dtype=np.intp)
-    new_id[used] = np.arange(len(used))
-    return np.ascontiguousarray(points[used]), np.ascontiguousarray(new_id[tets])
-
-
 def _interface_faces(tets: np.ndarray, region: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Faces between different regions or on the boundary, once each, with a code per pair."""
     faces = np.sort(tets[:, _FACES].reshape(-1, 3), axis=1)
@@ -124,9 +111,9 @@ def guarded(old: np.ndarray, new: np.ndarray, tets: np.ndarray, vol0: np.ndarray
     """``new`` with the vertices of every cell whose volume fell below ``min_volume_frac`` ×
     ``vol0`` restored to ``old``, repeatedly; ends since restoring all gives back ``old``."""
     new = new.copy()
-    bad = signed_volumes(new, tets) < min_volume_frac * vol0
+    bad = signed_volumes_mm3(new, tets) < min_volume_frac * vol0
     while bad.any():
         ids = np.unique(tets[bad])
         new[ids] = old[ids]
-        bad = signed_volumes(new, tets) < min_volume_frac * vol0
+        bad = signed_volumes_mm3(new, tets) < min_volume_frac * vol0
     return new

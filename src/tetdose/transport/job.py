@@ -44,6 +44,8 @@ PROGRESS_DELAY_S = 2.0
 PILOT_HISTORIES = 1000
 #: A run estimated to take longer than this [s] is announced (warning) before it starts.
 LONG_RUN_S = 600.0
+#: A run estimated to take longer than this [s] (30 days) is refused: surely a typo, not a plan.
+MAX_RUN_S = 30 * 86400.0
 
 Rows = tuple[FloatArray, FloatArray, IntArray]
 
@@ -122,7 +124,8 @@ def preflight(job: TransportJob, xs: CrossSections, settings: TransportSettings,
               workers: int) -> float:
     """Run the first :data:`PILOT_HISTORIES` histories (the run's own streams, discarded): refuse
     beams that reach neither the mesh nor the CT, and warn when the whole run is estimated to
-    take longer than :data:`LONG_RUN_S` on ``workers`` parallel workers. Returns the estimate [s].
+    take longer than :data:`LONG_RUN_S` on ``workers`` parallel workers (refuse it beyond
+    :data:`MAX_RUN_S`). Returns the estimate [s].
     """
     n = min(settings.n_histories, PILOT_HISTORIES)
     pilot = replace(settings, n_histories=n, n_batches=2)
@@ -135,6 +138,11 @@ def preflight(job: TransportJob, xs: CrossSections, settings: TransportSettings,
                         "the beams miss it; check the beams' position_mm / direction / "
                         "isocentre against the mesh and CT coordinates (mm, patient frame)")
     estimate = seconds / n * settings.n_histories / max(workers, 1)
+    if estimate > MAX_RUN_S:
+        raise PlanError(f"{settings.n_histories:.3g} histories would take about "
+                        f"{_duration(estimate)} here ({seconds / n * 1e6:.0f} µs per history on "
+                        f"{max(workers, 1)} worker(s)); give fewer --histories, or spread them "
+                        "over more workers (--dask)")
     if estimate > LONG_RUN_S:
         warnings.warn(f"{settings.n_histories:.3g} histories will take about "
                       f"{_duration(estimate)} here ({seconds / n * 1e6:.0f} µs per history on "

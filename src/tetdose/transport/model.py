@@ -220,6 +220,7 @@ def _beam_from_dict(d: Mapping[str, Any], i: int, base_dir: Path) -> PhotonSourc
         raise PlanError(f"{where}: give exactly one of energy_mev or spectrum")
     if "type" not in d or "position_mm" not in d:
         raise PlanError(f"{where}: type and position_mm are required")
+    _check_numbers(d, where)
     if "spectrum" in d and is_named(str(d["spectrum"])):
         energies, weights = named_spectrum(str(d["spectrum"]))
     elif "spectrum" in d:
@@ -234,6 +235,29 @@ def _beam_from_dict(d: Mapping[str, Any], i: int, base_dir: Path) -> PhotonSourc
             weight=float(d.get("weight", 1.0)), field_x_direction=d.get("field_x_direction"))
     except PlanError as exc:
         raise PlanError(f"{where}: {exc}") from None
+
+
+#: plan.toml beam keys holding a number, and those holding a list of numbers (with an example).
+_NUMBER_KEYS = ("energy_mev", "half_angle_deg", "weight")
+_VECTOR_KEYS = {"position_mm": "[0.0, 0.0, -100.0]", "direction": "[0.0, 0.0, 1.0]",
+                "field_mm": "[100.0, 100.0]", "field_x_direction": "[1.0, 0.0, 0.0]"}
+
+
+def _check_numbers(d: Mapping[str, Any], where: str) -> None:
+    """PlanError naming the key whose value is not a (finite) number or list of numbers."""
+    for key in (*_NUMBER_KEYS, *_VECTOR_KEYS):
+        if key not in d or (key == "field_x_direction" and d[key] is None):
+            continue
+        value = d[key]
+        vector = key in _VECTOR_KEYS
+        ok = isinstance(value, list) == vector and all(
+            isinstance(v, int | float) and not isinstance(v, bool) and np.isfinite(v)
+            for v in (value if vector else [value]))
+        if not ok:
+            kind, example = ("a list of numbers", _VECTOR_KEYS[key]) if vector else \
+                ("a number", "1.0")
+            raise PlanError(f"{where}: {key} = {value!r} is not {kind}; write e.g. "
+                            f"{key} = {example}")
 
 
 def read_spectrum(path: Path) -> tuple[FloatArray, FloatArray]:

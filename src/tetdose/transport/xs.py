@@ -50,6 +50,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from tetdose._constants import KEV_PER_MEV
 from tetdose._typing import FloatArray
 from tetdose.errors import PlanError
 from tetdose.transport.materials import (
@@ -120,7 +121,7 @@ def _element_table(z: int) -> tuple[FloatArray, FloatArray, float]:
     from mucoeff.io.load import get_table
 
     table = np.ascontiguousarray(get_table(int(z)), dtype=np.float64)
-    return table[:, 0] * 1e-3, table, float(mu(Flag.ATOMIC_MASS, int(z)))
+    return table[:, 0] / KEV_PER_MEV, table, float(mu(Flag.ATOMIC_MASS, int(z)))
 
 
 def _loglog(e_tab: FloatArray, y_tab: FloatArray, energy_mev: FloatArray) -> FloatArray:
@@ -232,11 +233,11 @@ def _warn_edges(mat: Material, e_min_mev: float, e_max_mev: float) -> None:
 
     for z in mat.elements:
         for flag in (Flag.K_EDGE, Flag.L1_EDGE):
-            edge_mev = float(mu(flag, int(z))) * 1e-3
+            edge_mev = float(mu(flag, int(z))) / KEV_PER_MEV
             if e_min_mev < edge_mev < e_max_mev:
                 warnings.warn(
                     f"material {mat.name!r}: element Z={int(z)} has an absorption edge at "
-                    f"{edge_mev * 1e3:.2f} keV inside the grid; the edge is smeared over one grid "
+                    f"{edge_mev * KEV_PER_MEV:.2f} keV inside the grid; the edge is smeared over one grid "
                     "interval (raise points_per_decade or e_min_mev)",
                     stacklevel=4,
                 )
