@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 
 from tetdose._atomic import atomic_write_dir
+from tetdose.absolute_dose import absolute_dose4d
 from tetdose.accumulate import (
     AccumulatedDose,
     accumulate_meshes,
@@ -49,7 +50,6 @@ from tetdose.mesh import TetMesh
 from tetdose.motion.ct4d import phase_densities
 from tetdose.motion.dvf import DisplacementField
 from tetdose.motion.phases import PhaseSeries
-from tetdose.prescription import prescribe_dose4d
 from tetdose.transport import DoseResult, Plan, TransportSettings, World
 from tetdose.transport.distributed import simulate_on
 
@@ -161,7 +161,7 @@ def run_dose4d(series: PhaseSeries, plan: Plan, settings: TransportSettings, *,
         voxel = _voxel_way(series, density, results[n:])
         body = _body_way(series, accumulated, results[:n])
     # Prescription (tetdose.prescription): one scale for every phase and accumulation.
-    return prescribe_dose4d(Dose4D(series, results[:n], accumulated, voxel, body), plan)
+    return absolute_dose4d(Dose4D(series, results[:n], accumulated, voxel, body), plan)
 
 
 def _bodies(series: PhaseSeries, ct_hu: Image | None, phase_ct: list[Image] | None,

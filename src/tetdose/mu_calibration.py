@@ -6,8 +6,8 @@ Reference conditions (the user's machine calibration is stated in them): a water
 on the isocentre plane at SAD 1000 mm, the reference point on the central axis at depth
 ``depth_mm`` (default 100 mm). ``gy_per_mu`` is the absorbed dose to water there per MU.
 
-tetdose computes, with the plan's beam quality and the same engine, the dose per source photon
-D_ref at that point (kerma in a 20 × 20 mm² voxel, ``depth_mm`` at its centre, track-length
+:mod:`tetdose.absolute_dose` computes, with the plan's beam quality and the same engine, the dose
+per source photon D_ref at that point (kerma in a 20 × 20 mm² voxel, ``depth_mm`` at its centre, track-length
 estimator). Linac sources carry the weight W = MU × (A/SAD²)/(A_ref/SAD_ref²)
 (:func:`tetdose.transport.beams.fluence_weight`: equal fluence per MU for every aperture), so a
 plan with total weight ΣW delivers N = gy_per_mu · ΣW / D_ref source photons per fraction and
@@ -26,7 +26,6 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
-from functools import lru_cache
 from typing import Any
 
 import numpy as np
@@ -73,46 +72,6 @@ class MUCalibration:
                    int(d.get("reference_histories", 1_000_000)))
 
 
-def plan_weight_and_quality(plan: Any) -> tuple[float, str]:  # noqa: ANN401
-    """(ΣW of the plan's linac sources, their one beam quality); refuses other plans."""
-    plan.require_resolved()  # an unresolved isocentre has no sources yet: ΣW would miss it
-    if plan.beams:
-        raise PlanError("[calibration] gy_per_mu needs linac beams only (MU have no meaning for "
-                        "pencil/parallel/point sources); use [prescription] instead")
-    qualities = {b.spectrum for b in plan.treatment_beams}
-    if len(qualities) != 1:
-        raise PlanError(f"[calibration] holds for one beam quality, the plan has "
-                        f"{sorted(qualities)}; split the plan by beam quality")
-    return float(sum(s.weight for s in plan.sources)), qualities.pop()
-
-
-def reference_dose_per_photon(spectrum: str, cal: MUCalibration, seed: int = 1
-                              ) -> tuple[float, float]:
-    """(D_ref, σ) [Gy per source photon] in the reference conditions of ``cal`` (module doc)."""
-    from tetdose.transport.spectra import build_up_depth_mm, is_named
-
-    if is_named(spectrum) and cal.depth_mm < build_up_depth_mm(spectrum):
-        raise PlanError(f"[calibration] depth_mm = {cal.depth_mm:g} lies in the build-up region "
-                        f"of {spectrum} (d_max {build_up_depth_mm(spectrum):g} mm), where "
-                        "tetdose reports kerma, not dose; state gy_per_mu at 100 mm depth")
-    return _reference(spectrum, cal.depth_mm, cal.ssd_mm, int(cal.reference_histories), seed)
-
-
-@lru_cache(maxsize=8)
-def _reference(spectrum: str, depth_mm: float, ssd_mm: float, n: int, seed: int
-               ) -> tuple[float, float]:
-    from tetdose.transport import Plan, TransportSettings, simulate
-
-    rho, lab, index = reference_phantom(depth_mm)
-    iso_y = REFERENCE_SAD_MM - ssd_mm  # surface at y = 0, beam along +y (HFS, gantry 0)
-    plan = Plan.from_dict({"beam": [{"type": "linac", "spectrum": spectrum,
-                                     "isocenter_mm": [0.0, iso_y, 0.0],
-                                     "jaws_mm": list(REFERENCE_JAWS_MM)}],
-                           "materials": {1: "water"}})
-    r = simulate(rho, plan, TransportSettings(n, 10, seed), labels=lab, progress=False)
-    return float(r.dose_gy[index]), float(r.dose_std_gy[index])
-
-
 def reference_phantom(depth_mm: float) -> tuple[Any, Any, int]:
     """(density, labels, flat index of the reference voxel) of the reference water phantom:
     surface at y = 0, depth along +y, voxels ``_VOXEL_WIDTH_MM`` wide laterally and about
@@ -130,23 +89,3 @@ def reference_phantom(depth_mm: float) -> tuple[Any, Any, int]:
     index = int(np.ravel_multi_index((nl // 2, above, nl // 2), grid.shape))
     return (Image(np.ones(grid.shape), grid), Image(np.ones(grid.shape, dtype=np.int16), grid),
             index)
-
-
-def calibration_scale(plan: Any, seed: int = 1) -> tuple[float, dict[str, Any]]:  # noqa: ANN401
-    """(source photons per fraction, run-record entries) of ``plan.calibration``."""
-    cal = plan.calibration
-    w, quality = plan_weight_and_quality(plan)
-    d_ref, s_ref = reference_dose_per_photon(quality, cal, seed)
-    if d_ref <= 0.0:
-        raise PlanError("the reference computation scored no dose; raise "
-                        "[calibration] reference_histories")
-    scale = cal.gy_per_mu * w / d_ref
-    rec = {"mu_calibration": {
-        "gy_per_mu": cal.gy_per_mu, "beam_quality": quality,
-        "reference": f"water, SSD {cal.ssd_mm:g} mm, 100 x 100 mm2 at SAD 1000 mm, "
-                     f"depth {cal.depth_mm:g} mm on the axis",
-        "reference_gy_per_photon": d_ref, "reference_gy_per_photon_std": s_ref,
-        "reference_histories": int(cal.reference_histories),
-        "mu_field_weight": w, "mu": float(sum(b.meterset for b in plan.treatment_beams))},
-        "calibration_scale": scale, "units": {"dose": MU_UNIT}}
-    return scale, rec

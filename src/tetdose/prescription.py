@@ -19,17 +19,13 @@ from __future__ import annotations
 
 import re
 from collections.abc import Mapping
-from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING, Any
+from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from tetdose._typing import FloatArray
 from tetdose.errors import PlanError
-
-if TYPE_CHECKING:
-    from tetdose.dose4d import Dose4D
-    from tetdose.transport.result import DoseResult
 
 #: Label of doses without a prescription (plots, files, records).
 PER_PHOTON_UNIT = "Gy per source photon"
@@ -162,68 +158,3 @@ def record(rx: Prescription, scale: float) -> dict[str, Any]:
                              "metric": rx.metric, "fractions": rx.fractions,
                              "total_dose_gy": rx.dose_gy * rx.fractions},
             "prescription_scale": scale, "units": {"dose": "Gy per fraction"}}
-
-
-def scaled_result(result: DoseResult, scale: float, rx: Prescription) -> DoseResult:
-    """``result`` with its dose scaled by ``scale`` (normalization particles × scale)."""
-    return replace(result.with_extra(**record(rx, scale)), particles=result.particles * scale)
-
-
-def prescribe_result(result: DoseResult, plan: Any, geometry: Any,  # noqa: ANN401
-                     labels: Any = None) -> DoseResult:
-    """One run prescribed by ``plan.prescription`` or calibrated by ``plan.calibration``
-    (gy_per_mu, :mod:`tetdose.mu_calibration`); unchanged without either."""
-    if getattr(plan, "calibration", None) is not None:
-        from tetdose.mu_calibration import calibration_scale
-
-        scale, rec = calibration_scale(plan)
-        return replace(result.with_extra(**rec), particles=result.particles * scale)
-    rx = plan.prescription
-    if rx is None:
-        return result.with_extra(units={"dose": PER_PHOTON_UNIT})
-    mask = region_cells(geometry, labels, region_label(rx.structure, plan.regions))
-    return scaled_result(result, scale_for(rx, result.dose_gy, result.mass_g, mask), rx)
-
-
-def prescribe_dose4d(d4: Dose4D, plan: Any) -> Dose4D:  # noqa: ANN401
-    """Every phase and accumulation of ``d4`` scaled by one factor, fixed on the accumulated
-    mesh dose of the prescription structure (unchanged without a prescription). With
-    ``plan.calibration`` (gy_per_mu) the factor comes from the meterset instead."""
-    rx = plan.prescription
-    acc = d4.accumulated
-    if getattr(plan, "calibration", None) is not None:
-        from tetdose.mu_calibration import calibration_scale
-
-        s, rec = calibration_scale(plan)
-    elif rx is None:
-        return d4
-    else:
-        ref = d4.series.reference
-        mask = region_cells(ref, None, region_label(rx.structure, plan.regions))
-        s = scale_for(rx, acc.dose_gy, acc.mass_g, mask)
-        rec = record(rx, s)
-    acc = replace(acc, dose_gy=acc.dose_gy * s,
-                  dose_std_gy=None if acc.dose_std_gy is None else acc.dose_std_gy * s)
-    voxel = d4.voxel
-    if voxel is not None:
-        voxel = replace(_scaled_images(voxel, s),
-                        results=[_scaled(r, s, rec) for r in voxel.results])
-    parts = {"body": _scaled_images(d4.body, s)} if getattr(d4, "body", None) else {}
-    return replace(d4, results=[_scaled(r, s, rec) for r in d4.results], accumulated=acc,
-                   voxel=voxel, **parts)
-
-
-def _scaled(result: DoseResult, scale: float, rec: dict[str, Any]) -> DoseResult:
-    return replace(result.with_extra(**rec), particles=result.particles * scale)
-
-
-#: Dose images of the 4D results (voxel way, hybrid body part) that a prescription scales.
-_DOSE_IMAGES = ("direct_mapping", "energy_mass_transfer", "accumulated", "accumulated_std",
-                "combined")
-
-
-def _scaled_images(obj: Any, s: float) -> Any:  # noqa: ANN401
-    """``obj`` (a dataclass) with each dose image of :data:`_DOSE_IMAGES` it has times ``s``."""
-    changes = {k: getattr(obj, k).with_array(getattr(obj, k).array * s) for k in _DOSE_IMAGES
-               if hasattr(obj, k)}
-    return replace(obj, **changes)

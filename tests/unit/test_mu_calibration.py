@@ -5,14 +5,9 @@ at the reference point (within the statistics of the two Monte Carlo runs)."""
 import numpy as np
 import pytest
 
+from tetdose.absolute_dose import absolute_result, calibration_scale, reference_dose_per_photon
 from tetdose.errors import PlanError
-from tetdose.mu_calibration import (
-    MUCalibration,
-    calibration_scale,
-    reference_dose_per_photon,
-    reference_phantom,
-)
-from tetdose.prescription import prescribe_result
+from tetdose.mu_calibration import MUCalibration, reference_phantom
 from tetdose.transport import Plan, TransportSettings, simulate
 from tetdose.transport.beams import aperture_rectangles, fluence_weight
 
@@ -79,7 +74,7 @@ def test_reference_conditions_give_gy_per_mu_times_mu():
     for k, beams in enumerate(plans):
         plan = Plan.from_dict({"beam": beams, "materials": {1: "water"}, "calibration": _cal()})
         r = simulate(rho, plan, TransportSettings(N_REF, 10, 7 + k), labels=lab, progress=False)
-        r = prescribe_result(r, plan, rho, lab)
+        r = absolute_result(r, plan, rho, lab)
         rec = r.record()
         d, s = r.dose_gy[index], r.dose_std_gy[index]
         s_ref = rec["mu_calibration"]["reference_gy_per_photon_std"] / \
@@ -121,18 +116,18 @@ def test_cli_dose_record_says_gy_per_fraction_and_keeps_the_calibration(tmp_path
 
 
 def test_dose4d_phases_and_accumulation_get_the_one_calibration_factor():
-    """prescribe_dose4d with [calibration]: every phase result and the accumulated dose are
+    """absolute_dose4d with [calibration]: every phase result and the accumulated dose are
     multiplied by gy_per_mu · ΣW / D_ref (the same factor as one run), units Gy per fraction."""
+    from tetdose.absolute_dose import absolute_dose4d
     from tetdose.accumulate import AccumulatedDose
     from tetdose.dose4d import Dose4D
-    from tetdose.prescription import prescribe_dose4d
 
     rho, lab, _ = reference_phantom(100.0)
     plan = Plan.from_dict({"beam": [_linac(80.0)], "materials": {1: "water"},
                            "calibration": _cal(reference_histories=20_000)})
     r = simulate(rho, plan, TransportSettings(2000, 2, 3), labels=lab, progress=False)
     acc = AccumulatedDose(r.dose_gy.copy(), r.dose_std_gy.copy(), r.mass_g, np.ones(1), 0.0)
-    d4 = prescribe_dose4d(Dose4D(None, [r, r], acc, None), plan)
+    d4 = absolute_dose4d(Dose4D(None, [r, r], acc, None), plan)
     s = d4.results[0].record()["calibration_scale"]
     assert s == pytest.approx(calibration_scale(plan)[0])
     np.testing.assert_allclose(d4.accumulated.dose_gy, r.dose_gy * s)

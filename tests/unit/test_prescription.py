@@ -6,6 +6,7 @@ import json
 import numpy as np
 import pytest
 
+from tetdose.absolute_dose import absolute_result
 from tetdose.dicom.rt_plan import write_rt_plan
 from tetdose.errors import PlanError
 from tetdose.image import Image, ImageGrid
@@ -14,7 +15,6 @@ from tetdose.prescription import (
     PER_PHOTON_UNIT,
     Prescription,
     dose_metric,
-    prescribe_result,
     scale_for,
 )
 from tetdose.transport import Plan
@@ -95,12 +95,12 @@ def test_cli_rtplan_with_prescription_gives_gy(water_ct, tmp_path):
                                                                           rel=1e-9)
 
 
-def test_prescribe_result_needs_the_structure(water_ct):
+def test_absolute_result_needs_the_structure(water_ct):
     plan = Plan.from_dict({"beam": [{"type": "pencil", "energy_mev": 1.0,
                                      "position_mm": [0, 0, -100]}],
                            "prescription": {"structure": "ptv", "dose_gy": 2}})
     with pytest.raises(PlanError, match=r"\[regions\]"):
-        prescribe_result(None, plan, read_image(water_ct / "ct.nrrd"),
+        absolute_result(None, plan, read_image(water_ct / "ct.nrrd"),
                          read_image(water_ct / "labels.nrrd"))
 
 

@@ -116,8 +116,8 @@ def _write_images(result: Any, output: Path) -> list[str]:  # noqa: ANN401
 
 
 def run(args: argparse.Namespace) -> int:
+    from tetdose.absolute_dose import absolute_result
     from tetdose.io import read_ct, read_image, write_image, write_mesh
-    from tetdose.prescription import prescribe_result
     from tetdose.transport import TransportSettings, World
     from tetdose.transport.distributed import simulate_on
 
@@ -149,7 +149,7 @@ def run(args: argparse.Namespace) -> int:
     plan = plan.resolved(world)
     with dask_context(args.dask) as client:
         result = simulate_on(client, world, plan, settings, progress=progress)
-    result = prescribe_result(result, plan, world)
+    result = absolute_result(result, plan, world)
     outputs: list[str] = []
     if mesh is not None:
         write_mesh(args.output, result.to_mesh(mesh))

@@ -169,8 +169,7 @@ class LinacBeam:
     line_weights: FloatArray = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
-        from tetdose.transport.model import read_spectrum
-        from tetdose.transport.spectra import is_named, named_spectrum
+        from tetdose.transport.spectra import is_named, named_spectrum, read_spectrum
 
         iso = np.asarray(self.isocenter_mm, dtype=np.float64).reshape(-1)
         if iso.shape != (3,) or not np.all(np.isfinite(iso)):

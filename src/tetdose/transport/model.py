@@ -49,7 +49,6 @@ aligned with the beam) made orthogonal to the beam axis; ``e2 = axis × e1``.
 
 from __future__ import annotations
 
-import csv
 import math
 import os
 import tomllib
@@ -60,11 +59,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from tetdose._typing import FloatArray
 from tetdose.errors import PlanError
 from tetdose.transport.beams import LinacBeam
 from tetdose.transport.photon_source import PhotonSource
-from tetdose.transport.spectra import is_named, named_spectrum
+from tetdose.transport.spectra import is_named, named_spectrum, read_spectrum
 
 if TYPE_CHECKING:
     from tetdose.mu_calibration import MUCalibration
@@ -258,23 +256,6 @@ def _check_numbers(d: Mapping[str, Any], where: str) -> None:
                 ("a number", "1.0")
             raise PlanError(f"{where}: {key} = {value!r} is not {kind}; write e.g. "
                             f"{key} = {example}")
-
-
-def read_spectrum(path: Path) -> tuple[FloatArray, FloatArray]:
-    """Spectrum lines from a CSV with header ``energy_mev,weight``."""
-    try:
-        with open(path, newline="") as f:
-            rows = list(csv.DictReader(f))
-    except OSError as exc:
-        raise PlanError(f"cannot read spectrum {path}: {exc.strerror}") from exc
-    try:
-        e = np.array([float(r["energy_mev"]) for r in rows])
-        w = np.array([float(r["weight"]) for r in rows])
-    except (KeyError, TypeError, ValueError):
-        raise PlanError(f"{path}: expected numeric columns energy_mev, weight") from None
-    if len(e) == 0:
-        raise PlanError(f"spectrum {path} has no rows")
-    return e, w
 
 
 @dataclass(frozen=True)

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import csv
 from importlib import resources
+from pathlib import Path
 
 import numpy as np
 
@@ -102,3 +103,20 @@ def _bins_to_lines(e_high_mev: FloatArray, per_mev: FloatArray) -> tuple[FloatAr
     weights = np.repeat(per_mev * width / LINES_PER_BIN, LINES_PER_BIN)
     keep = weights > 0.0  # empty bins (e.g. below a spectrum's lowest energy) give no lines
     return energies[keep], weights[keep]
+
+
+def read_spectrum(path: Path) -> tuple[FloatArray, FloatArray]:
+    """Spectrum lines from a CSV with header ``energy_mev,weight``."""
+    try:
+        with open(path, newline="") as f:
+            rows = list(csv.DictReader(f))
+    except OSError as exc:
+        raise PlanError(f"cannot read spectrum {path}: {exc.strerror}") from exc
+    try:
+        e = np.array([float(r["energy_mev"]) for r in rows])
+        w = np.array([float(r["weight"]) for r in rows])
+    except (KeyError, TypeError, ValueError):
+        raise PlanError(f"{path}: expected numeric columns energy_mev, weight") from None
+    if len(e) == 0:
+        raise PlanError(f"spectrum {path} has no rows")
+    return e, w
