@@ -334,7 +334,7 @@ def test_cli_dose_on_mesh_inside_ct_then_compare(tmp_path):
 
 def test_beams_that_miss_the_world_are_refused_and_long_runs_announced(tmp_path):
     """A beam aimed away from the mesh and the CT is an error before the run; a run estimated
-    above LONG_RUN_S is announced with its estimated duration."""
+    above LONG_RUN_S is announced with its estimated duration, one above MAX_RUN_S refused."""
     from tetdose.errors import PlanError
     from tetdose.transport import job
 
@@ -344,8 +344,10 @@ def test_beams_that_miss_the_world_are_refused_and_long_runs_announced(tmp_path)
         simulate(World(mesh=mesh, density=ct), away, _settings(2000, 0), progress=False)
     with pytest.raises(PlanError, match="miss"):
         simulate(mesh, away, _settings(2000, 0), progress=False)
-    jb, _ = job.build_job(World(mesh=mesh, density=ct), SLAB_PLAN, _settings(10**12, 0))
+    long, endless = _settings(10**10, 0), _settings(10**13, 0)  # hours to days; centuries
+    jb, _ = job.build_job(World(mesh=mesh, density=ct), SLAB_PLAN, long)
     with pytest.warns(UserWarning, match=r"will take about .* \(.*µs per history"):
-        estimate = job.preflight(jb, job.cross_sections(jb, _settings(10**12, 0)),
-                                 _settings(10**12, 0), 2)
-    assert estimate > job.LONG_RUN_S
+        estimate = job.preflight(jb, job.cross_sections(jb, long), long, 2)
+    assert job.LONG_RUN_S < estimate < job.MAX_RUN_S
+    with pytest.raises(PlanError, match="would take about"):
+        job.preflight(jb, job.cross_sections(jb, endless), endless, 2)
