@@ -277,3 +277,20 @@ def test_4dct_warm_start_registers_outward_and_recovers_every_phase():
             err = np.linalg.norm(field.vectors_mm - true, axis=-1)[lung]
             assert err.mean() < max(0.1, 0.15 * a), (warm, a, err.mean())
             assert not report.folded
+
+
+def test_hull_rows_match_the_pixelwise_half_plane_test():
+    from scipy.spatial import ConvexHull
+
+    from tetdose.motion.register import _hull_rows
+
+    rng = np.random.default_rng(3)
+    ny, nx = 40, 55
+    jj, ii = np.mgrid[0:ny, 0:nx]
+    pix = np.stack([ii.ravel(), jj.ravel()], axis=1).astype(np.float64)
+    for pts in (rng.uniform([5, 3], [50, 36], size=(30, 2)),  # random polygon
+                np.array([[10.0, 5.0], [40.0, 5.0], [40.0, 30.0], [10.0, 30.0]])):  # a = 0 facets
+        eq = ConvexHull(pts).equations
+        brute = np.all(pix @ eq[:, :2].T + eq[:, 2] <= 0.5, axis=1).reshape(ny, nx)
+        np.testing.assert_array_equal(_hull_rows(eq, ny, nx), brute)
+        assert brute.sum() > 100

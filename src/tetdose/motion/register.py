@@ -167,7 +167,7 @@ def body_mask(ct_hu: Image, threshold_hu: float = BODY_THRESHOLD_HU) -> np.ndarr
     body = largest_component(above, f"{threshold_hu:g} HU")
     ny, nx = body.shape[1:]
     jj, ii = np.mgrid[0:ny, 0:nx]
-    pix = np.stack([ii.ravel(), jj.ravel()], axis=1).astype(np.float64)
+    pix = np.stack([ii.ravel(), jj.ravel()], axis=1).astype(np.float64)  # (i, j) per pixel
     out = np.zeros_like(body)
     for k, sl in enumerate(body):
         edge = sl & ~ndimage.binary_erosion(sl)
@@ -180,12 +180,27 @@ def body_mask(ct_hu: Image, threshold_hu: float = BODY_THRESHOLD_HU) -> np.ndarr
         except QhullError:  # all on a line
             out[k] = sl
             continue
-        inside = np.all(pix @ eq[:, :2].T + eq[:, 2] <= 0.5, axis=1)
-        out[k] = inside.reshape(ny, nx) | sl
+        out[k] = _hull_rows(eq, ny, nx) | sl
     if step > 1:  # back to full resolution (nearest): each coarse pixel covers step × step
         nz, fy, fx = ct_hu.grid.shape
         out = np.repeat(np.repeat(out, step, axis=1), step, axis=2)[:, :fy, :fx]
     return out
+
+
+def _hull_rows(eq: np.ndarray, ny: int, nx: int) -> np.ndarray:
+    """Pixels (i, j) with a·i + b·j + c ≤ 0.5 for every hull facet (a, b, c) of ``eq``, row by
+    row: in row j the facets with a > 0 bound i from above by (0.5 − c − b·j)/a, those with a < 0
+    from below, those with a = 0 keep the row or drop it (ny × facets work, not ny × nx × facets).
+    """
+    a, b, c = eq[:, 0], eq[:, 1], eq[:, 2]
+    r = 0.5 - c[None, :] - b[None, :] * np.arange(ny, dtype=np.float64)[:, None]  # (ny, F)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        bound = r / a[None, :]
+    hi = np.min(np.where(a > 0, bound, np.inf), axis=1)
+    lo = np.max(np.where(a < 0, bound, -np.inf), axis=1)
+    keep = np.all((a != 0) | (r >= 0), axis=1)
+    i = np.arange(nx, dtype=np.float64)
+    return keep[:, None] & (i[None, :] >= lo[:, None]) & (i[None, :] <= hi[:, None])
 
 
 def register(reference: Image, phase: Image, *, mask: np.ndarray | None = None,
