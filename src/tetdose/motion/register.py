@@ -447,23 +447,38 @@ def _field(img, like) -> DisplacementField:  # noqa: ANN001
 
 def _report(fixed, moving, mask: np.ndarray, u: DisplacementField, reference: Image,  # noqa: ANN001
             percent: float, seconds: float) -> RegistrationReport:
+    """Metrics, Jacobian and largest |u| over the mask, computed on the mask's bounding box only
+    (the same numbers as on the whole image: every quantity is taken over mask voxels)."""
     import SimpleITK as sitk
 
-    f = sitk.GetArrayFromImage(fixed).astype(np.float64)
-    m0 = sitk.GetArrayFromImage(moving).astype(np.float64)
-    transform = sitk.DisplacementFieldTransform(sitk.Cast(u.to_sitk(), sitk.sitkVectorFloat64))
-    m1 = sitk.GetArrayFromImage(sitk.Resample(moving, fixed, transform, sitk.sitkLinear,
+    box = _crop_box(mask, np.array(fixed.GetSpacing())[::-1], 0.0)
+    fixed_b, moving_b, mask_b = _crop(fixed, box), _crop(moving, box), mask[box]
+    u_b = _sub_field(u, box)
+    f = sitk.GetArrayFromImage(fixed_b).astype(np.float64)
+    m0 = sitk.GetArrayFromImage(moving_b).astype(np.float64)
+    transform = sitk.DisplacementFieldTransform(sitk.Cast(u_b.to_sitk(), sitk.sitkVectorFloat64))
+    m1 = sitk.GetArrayFromImage(sitk.Resample(moving, fixed_b, transform, sitk.sitkLinear,
                                               np.nan)).astype(np.float64)
-    seen = mask & np.isfinite(m1)  # x + u(x) inside the phase image
+    seen = mask_b & np.isfinite(m1)  # x + u(x) inside the phase image
     jac = jacobian_range(u, mask)
-    norm = np.linalg.norm(u.vectors_mm, axis=-1)
+    norm = np.linalg.norm(u_b.vectors_mm, axis=-1)
     return RegistrationReport(
         percent=float(percent),
-        metric_before_hu2=float(np.mean((f - m0)[mask] ** 2)),
+        metric_before_hu2=float(np.mean((f - m0)[mask_b] ** 2)),
         metric_after_hu2=float(np.mean((f - m1)[seen] ** 2)) if seen.any() else np.nan,
         jacobian_min=jac.min, jacobian_max=jac.max, folding_fraction=jac.folding_fraction,
         worst_jacobian_mm=jac.worst_mm,
-        max_displacement_mm=float(norm[mask].max()), seconds=seconds)
+        max_displacement_mm=float(norm[mask_b].max()), seconds=seconds)
+
+
+def _sub_field(u: DisplacementField, box: tuple[slice, slice, slice]) -> DisplacementField:
+    """``u`` on the (z, y, x) index box: the same vectors at the same voxel centres."""
+    from tetdose.image import ImageGrid
+
+    start = np.array([box[2].start, box[1].start, box[0].start], dtype=float)
+    size = (box[2].stop - box[2].start, box[1].stop - box[1].start, box[0].stop - box[0].start)
+    grid = ImageGrid(u.grid.index_to_physical(start), u.grid.spacing_mm, u.grid.direction, size)
+    return DisplacementField(np.ascontiguousarray(u.vectors_mm[box]), grid)
 
 
 class JacobianRange(NamedTuple):
@@ -480,11 +495,16 @@ def jacobian_range(u: DisplacementField, mask: np.ndarray | None = None) -> Jaco
     central differences in physical units) over ``mask`` (default: every voxel)."""
     import SimpleITK as sitk
 
-    det = sitk.GetArrayFromImage(sitk.DisplacementFieldJacobianDeterminant(u.to_sitk()))
-    mask = np.ones(det.shape, dtype=bool) if mask is None else np.asarray(mask, dtype=bool)
+    mask = np.ones(u.grid.shape, dtype=bool) if mask is None else np.asarray(mask, dtype=bool)
+    # the mask's bounding box and one voxel more (the central differences' neighbours): the same
+    # determinants at the mask voxels as on the whole field, at a fraction of the cost
+    box = _crop_box(mask, np.ones(3), 1.0)
+    sub = _sub_field(u, box)
+    det = sitk.GetArrayFromImage(sitk.DisplacementFieldJacobianDeterminant(sub.to_sitk()))
+    mask = mask[box]
     d = det[mask]
     worst = np.unravel_index(int(np.argmin(np.where(mask, det, np.inf))), det.shape)
-    worst_mm = u.grid.index_to_physical(np.array(worst[::-1], dtype=float))
+    worst_mm = sub.grid.index_to_physical(np.array(worst[::-1], dtype=float))
     return JacobianRange(float(d.min()), float(d.max()), float(np.mean(d <= 0.0)),
                          (float(worst_mm[0]), float(worst_mm[1]), float(worst_mm[2])))
 
