@@ -294,3 +294,20 @@ def test_hull_rows_match_the_pixelwise_half_plane_test():
         brute = np.all(pix @ eq[:, :2].T + eq[:, 2] <= 0.5, axis=1).reshape(ny, nx)
         np.testing.assert_array_equal(_hull_rows(eq, ny, nx), brute)
         assert brute.sum() > 100
+
+
+def test_cli_crop_and_warm_start_options_reach_the_settings():
+    import argparse
+
+    from tetdose.cli._register import add_args, settings_from
+
+    p = argparse.ArgumentParser()
+    add_args(p)
+    base = ["--4dct", "ct4d", "--reference", "50", "-o", "dvf"]
+    d = settings_from(p.parse_args(base))
+    assert d.crop_margin_mm == RegistrationSettings().crop_margin_mm and d.warm_start
+    s = settings_from(p.parse_args([*base, "--crop-margin-mm", "5", "--no-warm-start"]))
+    assert s.crop_margin_mm == 5.0 and not s.warm_start
+    assert settings_from(p.parse_args([*base, "--no-crop"])).crop_margin_mm is None
+    with pytest.raises(ImageError, match="crop_margin_mm"):
+        RegistrationSettings(crop_margin_mm=-1.0)
