@@ -18,9 +18,11 @@ no warm start) where it says so. Cases:
 
 ``--dose`` also runs the demo study (``run_study(StudyConfig())``, as ``tetdose demo``) in this
 process and prints its 4D dose stage's time against the demo's 10-phase registration (the issue's
-target: registration faster than that stage). ``--bspline`` also times the B-spline method on
-``lung`` (slow: minutes). The phase images of ``demo`` and ``large`` are made by a direct
-pull-back I(y + v(y)) with a smooth field v (its accuracy does not matter for timing).
+target: registration faster than that stage); run it with the numba cache warm (after ``make
+demo`` or a first run), else the stage includes compiling the transport kernels. ``--bspline``
+also times the B-spline method on ``lung`` (slow: minutes). The phase images of ``demo`` and
+``large`` are made by a direct pull-back I(y + v(y)) with a smooth field v (its accuracy does not
+matter for timing).
 """
 
 from __future__ import annotations
