@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -209,3 +210,104 @@ def test_cli_register_with_a_mask_file(tmp_path):
     assert main(["register", "-q", "--4dct", *files, "--reference", "50",
                  "--mask", str(tmp_path / "empty.nii.gz"), "-o", str(tmp_path / "x")]) == 2
     assert not (tmp_path / "x").exists()  # nothing half-written
+
+
+def test_crop_to_the_masks_box_keeps_the_field_and_continues_it_outside():
+    from tetdose.motion.register import _crop_box
+
+    small = thorax()
+    pad = 12  # air around the body: the box (body + 20 mm) is smaller than the image in x, y
+    arr = np.pad(small.array, ((0, 0), (pad, pad), (pad, pad)), constant_values=-1000.0)
+    grid = ImageGrid(GRID.origin_mm - [pad * 2.5, pad * 2.5, 0.0], GRID.spacing_mm, np.eye(3),
+                     (arr.shape[2], arr.shape[1], arr.shape[0]))
+    ct = Image(arr, grid)
+    u = breathing_field(5.0, diaphragm_z_mm=-20.0, centre_xy_mm=(0.0, 0.0),
+                        width_xy_mm=(40.0, 40.0), decay_mm=60.0)
+    phase = warp(ct, u)
+    cropped, _ = register(ct, phase, settings=FAST)
+    whole, _ = register(ct, phase, settings=RegistrationSettings(
+        shrink=FAST.shrink, iterations=FAST.iterations, smoothing_mm=4.0, crop_margin_mm=None))
+    lung = (ct.array < -300) & (ct.array > -950) & inner(grid)
+    true = u(grid.voxel_centers_mm()).reshape(cropped.vectors_mm.shape)
+    err = np.linalg.norm(cropped.vectors_mm - true, axis=-1)[lung]
+    assert err.mean() < 1.0
+    diff = np.linalg.norm(cropped.vectors_mm - whole.vectors_mm, axis=-1)[lung]
+    assert diff.mean() < 0.1 * np.linalg.norm(true, axis=-1)[lung].mean()  # same field inside
+    body = body_mask(ct) | body_mask(phase)
+    box = _crop_box(body, grid.spacing_mm[::-1], 20.0)
+    assert box[2].start > 0 and box[2].stop < arr.shape[2]  # the crop is real
+    v = cropped.vectors_mm
+    np.testing.assert_array_equal(v[:, :, : box[2].start], np.repeat(
+        v[:, :, box[2].start: box[2].start + 1], box[2].start, axis=2))  # edge replication
+    np.testing.assert_array_equal(v[:, : box[1].start, box[2]], np.repeat(
+        v[:, box[1].start: box[1].start + 1, box[2]], box[1].start, axis=1))
+
+
+def test_warm_start_starts_from_the_given_field():
+    ct = thorax()
+    u = breathing_field(5.0, diaphragm_z_mm=-20.0, centre_xy_mm=(0.0, 0.0),
+                        width_xy_mm=(40.0, 40.0), decay_mm=60.0)
+    phase = warp(ct, u)
+    true = DisplacementField(u(ct.grid.voxel_centers_mm()).reshape(*ct.grid.shape, 3), ct.grid)
+    one = RegistrationSettings(shrink=(2, 1), iterations=(1, 1), smoothing_mm=4.0)
+    lung = (ct.array < -300) & (ct.array > -950) & inner(ct.grid)
+    warm, _ = register(ct, phase, settings=one, initial=true)
+    cold, _ = register(ct, phase, settings=one)
+    err = {k: np.linalg.norm(f.vectors_mm - true.vectors_mm, axis=-1)[lung].mean()
+           for k, f in (("warm", warm), ("cold", cold))}
+    assert err["warm"] < 0.5 < 2.0 < err["cold"]  # one iteration: only the start tells them apart
+    with pytest.raises(ImageError, match="initial field"):
+        register(ct, phase, settings=one, initial=DisplacementField(
+            np.zeros((*GRID.shape, 3)), ImageGrid(GRID.origin_mm + 1.0, GRID.spacing_mm,
+                                                  np.eye(3), GRID.size)))
+
+
+def test_4dct_warm_start_registers_outward_and_recovers_every_phase():
+    ct = thorax()
+    amps = [4.0, 2.0, 0.0, 2.0, 5.0]  # reference in the middle, motion growing outward
+    us = [breathing_field(max(a, 1e-9), diaphragm_z_mm=-20.0, centre_xy_mm=(0.0, 0.0),
+                          width_xy_mm=(40.0, 40.0), decay_mm=60.0) for a in amps]
+    phases = [ct if a == 0 else warp(ct, u) for a, u in zip(amps, us, strict=True)]
+    lung = (ct.array < -300) & (ct.array > -950) & inner(ct.grid)
+    settings = RegistrationSettings(shrink=(2, 1), iterations=(60, 30), smoothing_mm=4.0)
+    for warm in (True, False):
+        out = register_4dct(phases, 2, settings=replace(settings, warm_start=warm))
+        for (field, report), u, a in zip(out, us, amps, strict=True):
+            true = u(ct.grid.voxel_centers_mm()).reshape(field.vectors_mm.shape)
+            err = np.linalg.norm(field.vectors_mm - true, axis=-1)[lung]
+            assert err.mean() < max(0.1, 0.15 * a), (warm, a, err.mean())
+            assert not report.folded
+
+
+def test_hull_rows_match_the_pixelwise_half_plane_test():
+    from scipy.spatial import ConvexHull
+
+    from tetdose.motion.register import _hull_rows
+
+    rng = np.random.default_rng(3)
+    ny, nx = 40, 55
+    jj, ii = np.mgrid[0:ny, 0:nx]
+    pix = np.stack([ii.ravel(), jj.ravel()], axis=1).astype(np.float64)
+    for pts in (rng.uniform([5, 3], [50, 36], size=(30, 2)),  # random polygon
+                np.array([[10.0, 5.0], [40.0, 5.0], [40.0, 30.0], [10.0, 30.0]])):  # a = 0 facets
+        eq = ConvexHull(pts).equations
+        brute = np.all(pix @ eq[:, :2].T + eq[:, 2] <= 0.5, axis=1).reshape(ny, nx)
+        np.testing.assert_array_equal(_hull_rows(eq, ny, nx), brute)
+        assert brute.sum() > 100
+
+
+def test_cli_crop_and_warm_start_options_reach_the_settings():
+    import argparse
+
+    from tetdose.cli._register import add_args, settings_from
+
+    p = argparse.ArgumentParser()
+    add_args(p)
+    base = ["--4dct", "ct4d", "--reference", "50", "-o", "dvf"]
+    d = settings_from(p.parse_args(base))
+    assert d.crop_margin_mm == RegistrationSettings().crop_margin_mm and d.warm_start
+    s = settings_from(p.parse_args([*base, "--crop-margin-mm", "5", "--no-warm-start"]))
+    assert s.crop_margin_mm == 5.0 and not s.warm_start
+    assert settings_from(p.parse_args([*base, "--no-crop"])).crop_margin_mm is None
+    with pytest.raises(ImageError, match="crop_margin_mm"):
+        RegistrationSettings(crop_margin_mm=-1.0)

@@ -8,8 +8,8 @@ grid): mean error < 1 mm, 95th percentile < 2 mm, no folding; and the vertices o
 moved by the recovered field must land within 1.5 mm of u's positions. The smooth breathing
 field runs in ``make test`` (8 s on a quiet VM, ~20 s loaded); the sliding-like one (a chest
 wall that stays while the lung moves, through a 5 mm shear layer) is ``slow``. Measured
-(defaults, bench/README.md): smooth field mean 0.30 mm, p95 0.65 mm, worst vertex 1.40 mm;
-sliding mean 0.24 mm, p95 0.68 mm, but the worst vertex 2.65 mm at the shear layer, where the
+(defaults, bench/README.md): smooth field mean 0.30 mm, p95 0.65 mm, worst vertex 1.42 mm;
+sliding mean 0.25 mm, p95 0.71 mm, but the worst vertex 2.66 mm at the shear layer, where the
 demons' Gaussian regularisation cannot follow a discontinuous field — so there the 95th
 percentile of the vertices is asserted.
 """

@@ -50,6 +50,14 @@ def add_registration_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--iterations", type=int_at_least(1), nargs="+", default=list(d.iterations),
                    help="iterations per pyramid level")
     p.add_argument("--threads", type=int_at_least(1), help="SimpleITK threads (default: all cores)")
+    p.add_argument("--crop-margin-mm", type=float_in(0.0), default=d.crop_margin_mm,
+                   help="demons: register inside the masks' bounding box widened by this "
+                   "margin [mm] (the field is continued outside it by its edge values)")
+    p.add_argument("--no-crop", action="store_true",
+                   help="demons: register the whole image, not the masks' bounding box")
+    p.add_argument("--no-warm-start", action="store_true",
+                   help="demons: start every phase from zero, not from its neighbour's field "
+                   "(phases are otherwise registered outward from the reference)")
     p.add_argument("--inverse-consistency", action="store_true",
                    help="also register phase → reference and report |u(x) + w(x + u(x))| (2× time)")
 
@@ -59,7 +67,9 @@ def settings_from(args: argparse.Namespace) -> RegistrationSettings:
 
     return RegistrationSettings(method=args.reg_method, shrink=tuple(args.shrink),
                                 iterations=tuple(args.iterations), smoothing_mm=args.smoothing_mm,
-                                grid_spacing_mm=args.grid_spacing_mm, threads=args.threads)
+                                grid_spacing_mm=args.grid_spacing_mm, threads=args.threads,
+                                crop_margin_mm=None if args.no_crop else args.crop_margin_mm,
+                                warm_start=not args.no_warm_start)
 
 
 def register_to(args: argparse.Namespace, out_dir: Path) -> tuple[list[Path], list[float],
