@@ -28,6 +28,11 @@ from tetdose.mesh import FACE_VERTICES, signed_volumes_mm3
 ROUNDS = 3
 #: Compass-search iterations per vertex.
 SEARCH_ITERATIONS = 30
+#: Rounds of topological moves (flips.py), each followed by relocation.
+TOPOLOGY_ROUNDS = 3
+#: After the first round, junction and ridge vertices of the remaining bad tetrahedra move
+#: within this fraction of their star's mean longest edge.
+FIXED_MOVE_FRACTION = 0.2
 #: A surface vertex slides only where its faces' normals are within this angle of their mean.
 SMOOTH_DEG = 25.0
 
@@ -53,8 +58,36 @@ def _stars(n_points: int, tets: IntArray) -> tuple[IntArray, IntArray]:
 
 
 def removed_slivers(points_mm: FloatArray, tets: IntArray, region: IntArray,
-                    min_dihedral_deg: float) -> FloatArray:
-    """Points with the vertices of bad tetrahedra relocated (module doc); tets unchanged."""
+                    min_dihedral_deg: float) -> tuple[FloatArray, IntArray, IntArray]:
+    """(points, tets, region) with the slivers below ``min_dihedral_deg`` [°] removed (module
+    doc): relocation of the free and smooth-surface vertices, then rounds of topological moves
+    (:func:`tetdose.meshing.flips.flipped`) each followed by relocation, the later rounds also
+    moving junction and ridge vertices within ``FIXED_MOVE_FRACTION`` of their edges."""
+    from tetdose.meshing.flips import flipped
+
+    tets = np.asarray(tets, dtype=np.intp)
+    region = np.asarray(region, dtype=np.int64)
+    points = relocated(points_mm, tets, region, min_dihedral_deg)
+    for k in range(TOPOLOGY_ROUNDS):
+        bad = np.flatnonzero(_min_dihedral(points, tets) < min_dihedral_deg)
+        if bad.size == 0:
+            break
+        tets, region = flipped(points, tets, region, min_dihedral_deg, bad)
+        bound = FIXED_MOVE_FRACTION if k > 0 else 0.0
+        points = relocated(points, tets, region, min_dihedral_deg, fixed_move_fraction=bound)
+    used = np.zeros(len(points), dtype=bool)
+    used[tets.ravel()] = True
+    if not used.all():  # a deleted corner tetrahedron can leave its apex unused
+        new_id = np.cumsum(used) - 1
+        points, tets = points[used], new_id[tets]
+    return points, tets, region
+
+
+def relocated(points_mm: FloatArray, tets: IntArray, region: IntArray, min_dihedral_deg: float,
+              *, fixed_move_fraction: float = 0.0) -> FloatArray:
+    """Points with the vertices of bad tetrahedra relocated (module doc); tets unchanged.
+    With ``fixed_move_fraction`` > 0 the fixed vertices (junctions, ridges) move too, in 3-D
+    but at most that fraction of their star's mean longest edge from where they are."""
     points = points_mm.copy()
     bad = np.flatnonzero(_min_dihedral(points, tets) < min_dihedral_deg)
     if bad.size == 0:
@@ -63,9 +96,12 @@ def removed_slivers(points_mm: FloatArray, tets: IntArray, region: IntArray,
     fixed, projector = _frames(points, tets, region)
     for _ in range(ROUNDS):
         for v in np.unique(tets[bad]).tolist():
+            star = star_tets[offsets[v]:offsets[v + 1]]
             if not fixed[v]:
-                star = star_tets[offsets[v]:offsets[v + 1]]
                 points[v] = _relocated(points, tets, star, v, projector[v], min_dihedral_deg)
+            elif fixed_move_fraction > 0:
+                points[v] = _relocated(points, tets, star, v, np.eye(3), min_dihedral_deg,
+                                       fixed_move_fraction)
         bad = bad[_min_dihedral(points, tets[bad]) < min_dihedral_deg]
         if bad.size == 0:
             break
@@ -135,19 +171,24 @@ def _star_score(points_mm: FloatArray, star_tets: IntArray, v: int,
 
 
 def _relocated(points_mm: FloatArray, tets: IntArray, star: IntArray, v: int,
-               projector: FloatArray, threshold_deg: float) -> FloatArray:
-    """Compass search (module doc) for the position of ``v``, moves projected by ``projector``."""
+               projector: FloatArray, threshold_deg: float, bound_fraction: float = np.inf
+               ) -> FloatArray:
+    """Compass search (module doc) for the position of ``v``, moves projected by ``projector``
+    and kept within ``bound_fraction`` × the star's mean longest edge of the start."""
     star_tets = tets[star]
     edge = np.linalg.norm(points_mm[star_tets] - points_mm[v], axis=2).max(axis=1).mean()
     dirs = _DIRS @ projector
     dirs = dirs[np.linalg.norm(dirs, axis=1) > 0.3]
-    x = points_mm[v].copy()
+    x0 = points_mm[v].copy()
+    x = x0.copy()
+    radius = bound_fraction * edge
     best = _star_score(points_mm, star_tets, v, x[None], threshold_deg)[0]
     ideal = _ideal(points_mm, tets, star, v)
-    step = 0.5 * edge
+    step = min(0.5 * edge, radius)
     for _ in range(SEARCH_ITERATIONS):
         cand = np.concatenate([x + step * dirs, [x + 0.5 * projector @ (ideal - x)]])
         score = _star_score(points_mm, star_tets, v, cand, threshold_deg)
+        score[np.linalg.norm(cand - x0, axis=1) > radius] = -np.inf
         i = int(np.argmax(score))
         if score[i] > best:
             best, x = score[i], cand[i]
