@@ -33,7 +33,7 @@ from __future__ import annotations
 import numpy as np
 
 from tetdose._typing import FloatArray, IntArray
-from tetdose.mesh import FACE_VERTICES, signed_volumes_mm3
+from tetdose.mesh import FACE_VERTICES
 
 #: Largest ring of tetrahedra around an edge considered for edge removal.
 MAX_RING = 12
@@ -47,11 +47,10 @@ _EDGE_PAIRS = ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3))
 
 def tet_quality(points_mm: FloatArray, tets: IntArray) -> FloatArray:
     """Smallest dihedral angle [°] of each tetrahedron; −∞ where its signed volume ≤ 0."""
-    from tetdose.meshing.checks import dihedral_angles_deg
+    from tetdose.meshing.quality import min_dihedral_and_volume
 
-    tets = np.asarray(tets, dtype=np.intp).reshape(-1, 4)
-    q = dihedral_angles_deg(points_mm, tets).min(axis=1)
-    return np.where(signed_volumes_mm3(points_mm, tets) > 0.0, q, -np.inf)
+    q, vol6 = min_dihedral_and_volume(points_mm[np.asarray(tets, dtype=np.intp).reshape(-1, 4)])
+    return np.where(vol6 > 0.0, q, -np.inf)
 
 
 def _even(perm: tuple[int, ...]) -> bool:
@@ -155,7 +154,7 @@ def _edge_removal(mesh: _Mesh, a: int, b: int, ring: list[int]) -> tuple[float, 
     tets = np.concatenate([np.column_stack([np.full(len(r), a), r[:, 0], r[:, 1], r[:, 2]]),
                            np.column_stack([np.full(len(r), b), r[:, 0], r[:, 2], r[:, 1]])])
     q = tet_quality(mesh.points, tets)
-    qt = dict(zip(triples, np.minimum(q[:len(r)], q[len(r):]).tolist()))
+    qt = dict(zip(triples, np.minimum(q[:len(r)], q[len(r):]).tolist(), strict=True))
     best: dict[tuple[int, int], float] = {(i, i + 1): np.inf for i in range(n - 1)}
     split: dict[tuple[int, int], int] = {}
     for length in range(2, n):
@@ -205,10 +204,10 @@ def _reassignment(mesh: _Mesh, t: int) -> int | None:
 
 
 def flipped(points_mm: FloatArray, tets: IntArray, region: IntArray, min_dihedral_deg: float,
-            bad: IntArray | None = None) -> tuple[IntArray, IntArray]:
-    """(tets, region) after the moves of the module doc on every tetrahedron with a dihedral
-    angle below ``min_dihedral_deg`` [°] (``bad``: their ids, if known); points unchanged (some
-    may become unused)."""
+            bad: IntArray | None = None) -> tuple[IntArray, IntArray, IntArray]:
+    """(tets, region, ids of the tets still bad) after the moves of the module doc on every
+    tetrahedron with a dihedral angle below ``min_dihedral_deg`` [°] (``bad``: their ids, if
+    known); points unchanged (some may become unused)."""
     mesh = _Mesh(points_mm, np.asarray(tets, dtype=np.intp), np.asarray(region, dtype=np.int64))
     if bad is None:
         bad = np.flatnonzero(tet_quality(points_mm, tets) < min_dihedral_deg)
@@ -262,6 +261,9 @@ def flipped(points_mm: FloatArray, tets: IntArray, region: IntArray, min_dihedra
         mesh.kill(best[1])
         ids = mesh.add(best[2], best[3])
         q = mesh.quality(ids)
-        queue += [i for i, qi in zip(ids, q.tolist()) if qi < min_dihedral_deg]
+        queue += [i for i, qi in zip(ids, q.tolist(), strict=True) if qi < min_dihedral_deg]
     keep = mesh.alive[:mesh.n]
-    return mesh.tets[:mesh.n][keep].copy(), mesh.region[:mesh.n][keep].copy()
+    new_id = np.cumsum(keep) - 1
+    left = np.unique([t for t in queue if mesh.alive[t]]).astype(np.intp)
+    left = left[mesh.quality(left.tolist()) < min_dihedral_deg] if left.size else left
+    return mesh.tets[:mesh.n][keep].copy(), mesh.region[:mesh.n][keep].copy(), new_id[left]

@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from tetdose._typing import FloatArray, IntArray
-from tetdose.mesh import FACE_VERTICES, signed_volumes_mm3
+from tetdose.mesh import FACE_VERTICES
 
 #: Relocation rounds over the remaining bad tetrahedra.
 ROUNDS = 3
@@ -42,10 +42,34 @@ _DIRS = _DIRS[np.abs(_DIRS).sum(axis=1) != 2]
 _DIRS /= np.linalg.norm(_DIRS, axis=1)[:, None]
 
 
-def _min_dihedral(points_mm: FloatArray, tets: IntArray) -> FloatArray:
-    from tetdose.meshing.checks import dihedral_angles_deg
+def _cross(a: FloatArray, b: FloatArray) -> FloatArray:
+    """a × b over the last axis (componentwise: fewer temporaries than np.cross)."""
+    return np.stack([a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1],
+                     a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2],
+                     a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]], axis=-1)
 
-    return dihedral_angles_deg(points_mm, tets).min(axis=1)
+
+def min_dihedral_and_volume(p: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Smallest dihedral angle [°] and 6 × signed volume [mm³] of tetrahedra with vertex
+    coordinates ``p`` (..., 4, 3) [mm].
+
+    With e_k = p_k − p_0, the outward area normals of the faces opposite vertices 1, 2, 3 are
+    n_1 = e_3 × e_2, n_2 = e_1 × e_3, n_3 = e_2 × e_1, and n_0 = −(n_1 + n_2 + n_3); the
+    dihedral angle between faces i and j is π − ∠(n_i, n_j), so the smallest one is
+    arccos(−min_{i<j} n̂_i · n̂_j); 6V = −e_1 · n_1.
+    """
+    e1, e2, e3 = (p[..., k, :] - p[..., 0, :] for k in (1, 2, 3))
+    n1, n2, n3 = _cross(e3, e2), _cross(e1, e3), _cross(e2, e1)
+    n = np.stack([-(n1 + n2 + n3), n1, n2, n3], axis=-2)
+    n = n / np.maximum(np.sqrt((n * n).sum(axis=-1)), 1e-300)[..., None]
+    dots = [(n[..., i, :] * n[..., j, :]).sum(axis=-1) for i, j in
+            ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3))]
+    worst = np.minimum.reduce(dots)
+    return np.degrees(np.arccos(np.clip(-worst, -1.0, 1.0))), -(e1 * n1).sum(axis=-1)
+
+
+def _min_dihedral(points_mm: FloatArray, tets: IntArray) -> FloatArray:
+    return min_dihedral_and_volume(points_mm[tets])[0]
 
 
 def _stars(n_points: int, tets: IntArray) -> tuple[IntArray, IntArray]:
@@ -67,14 +91,15 @@ def removed_slivers(points_mm: FloatArray, tets: IntArray, region: IntArray,
 
     tets = np.asarray(tets, dtype=np.intp)
     region = np.asarray(region, dtype=np.int64)
-    points = relocated(points_mm, tets, region, min_dihedral_deg)
+    bad = np.flatnonzero(_min_dihedral(points_mm, tets) < min_dihedral_deg)
+    points, bad = relocated(points_mm, tets, region, min_dihedral_deg, bad)
     for k in range(TOPOLOGY_ROUNDS):
-        bad = np.flatnonzero(_min_dihedral(points, tets) < min_dihedral_deg)
         if bad.size == 0:
             break
-        tets, region = flipped(points, tets, region, min_dihedral_deg, bad)
+        tets, region, bad = flipped(points, tets, region, min_dihedral_deg, bad)
         bound = FIXED_MOVE_FRACTION if k > 0 else 0.0
-        points = relocated(points, tets, region, min_dihedral_deg, fixed_move_fraction=bound)
+        points, bad = relocated(points, tets, region, min_dihedral_deg, bad,
+                                fixed_move_fraction=bound)
     used = np.zeros(len(points), dtype=bool)
     used[tets.ravel()] = True
     if not used.all():  # a deleted corner tetrahedron can leave its apex unused
@@ -84,63 +109,68 @@ def removed_slivers(points_mm: FloatArray, tets: IntArray, region: IntArray,
 
 
 def relocated(points_mm: FloatArray, tets: IntArray, region: IntArray, min_dihedral_deg: float,
-              *, fixed_move_fraction: float = 0.0) -> FloatArray:
-    """Points with the vertices of bad tetrahedra relocated (module doc); tets unchanged.
-    With ``fixed_move_fraction`` > 0 the fixed vertices (junctions, ridges) move too, in 3-D
-    but at most that fraction of their star's mean longest edge from where they are."""
+              bad: IntArray, *, fixed_move_fraction: float = 0.0) -> tuple[FloatArray, IntArray]:
+    """(points with the vertices of the bad tetrahedra ``bad`` relocated (module doc), ids of
+    the tetrahedra still below ``min_dihedral_deg``); tets unchanged. With
+    ``fixed_move_fraction`` > 0 the fixed vertices (junctions, ridges) move too, in 3-D but at
+    most that fraction of their star's mean longest edge from where they are."""
     points = points_mm.copy()
-    bad = np.flatnonzero(_min_dihedral(points, tets) < min_dihedral_deg)
     if bad.size == 0:
-        return points
+        return points, bad
     offsets, star_tets = _stars(len(points), tets)
-    fixed, projector = _frames(points, tets, region)
     for _ in range(ROUNDS):
+        touched = []
         for v in np.unique(tets[bad]).tolist():
             star = star_tets[offsets[v]:offsets[v + 1]]
-            if not fixed[v]:
-                points[v] = _relocated(points, tets, star, v, projector[v], min_dihedral_deg)
-            elif fixed_move_fraction > 0:
-                points[v] = _relocated(points, tets, star, v, np.eye(3), min_dihedral_deg,
-                                       fixed_move_fraction)
-        bad = bad[_min_dihedral(points, tets[bad]) < min_dihedral_deg]
+            fixed, projector = _frame(points, tets, region, star, v)
+            if fixed and fixed_move_fraction <= 0:
+                continue
+            if fixed:
+                x = _relocated(points, tets, star, v, np.eye(3), min_dihedral_deg,
+                               fixed_move_fraction)
+            else:
+                x = _relocated(points, tets, star, v, projector, min_dihedral_deg)
+            if np.any(x != points[v]):
+                points[v] = x
+                touched.append(star)
+        if not touched:
+            break
+        near = np.union1d(bad, np.concatenate(touched))  # a move may worsen a neighbour
+        bad = near[_min_dihedral(points, tets[near]) < min_dihedral_deg]
         if bad.size == 0:
             break
-    return points
+    return points, bad
 
 
-def _frames(points_mm: FloatArray, tets: IntArray, region: IntArray
-            ) -> tuple[np.ndarray, FloatArray]:
-    """Per vertex: fixed? and the projector (N, 3, 3) of its allowed moves (module doc)."""
-    n = len(points_mm)
-    faces = tets[:, FACE_VERTICES].reshape(-1, 3)
-    key = np.sort(faces, axis=1)
-    order = np.lexsort(key.T[::-1])
-    same = np.all(key[order][1:] == key[order][:-1], axis=1)
-    own = np.repeat(region, 4)
-    other = np.full(len(faces), -1, dtype=np.int64)
-    first, second = order[:-1][same], order[1:][same]
-    other[first], other[second] = own[second], own[first]
-    keep = own > other  # boundary faces (other = −1) and each interface once, from its higher side
-    faces, code = faces[keep], own[keep] * (int(region.max()) + 2) + other[keep] + 1
-    lo = np.full(n, np.iinfo(np.int64).max)
-    hi = np.full(n, -1, dtype=np.int64)
-    np.minimum.at(lo, faces.ravel(), np.repeat(code, 3))
-    np.maximum.at(hi, faces.ravel(), np.repeat(code, 3))
-    p = points_mm[faces]
-    area_normal = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
-    normal = np.zeros((n, 3))
-    for c in range(3):
-        np.add.at(normal, faces[:, c], area_normal)
-    normal /= np.maximum(np.linalg.norm(normal, axis=1), 1e-300)[:, None]
-    unit = area_normal / np.maximum(np.linalg.norm(area_normal, axis=1), 1e-300)[:, None]
-    cos = np.ones(n)
-    for c in range(3):
-        np.minimum.at(cos, faces[:, c], np.einsum("ij,ij->i", unit, normal[faces[:, c]]))
-    on_surface = hi >= 0
-    fixed = on_surface & ((lo != hi) | (cos < np.cos(np.radians(SMOOTH_DEG))))
-    projector = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
-    projector[on_surface] -= normal[on_surface, :, None] * normal[on_surface, None, :]
-    return fixed, projector
+def _frame(points_mm: FloatArray, tets: IntArray, region: IntArray, star: IntArray, v: int
+           ) -> tuple[bool, FloatArray]:
+    """Whether vertex ``v`` is fixed, and the projector (3, 3) of its allowed moves (module
+    doc), from the faces through ``v`` of its star ``star``: a face there once is on the outer
+    boundary, twice with two regions on an interface (oriented from the higher region)."""
+    seen: dict[tuple[int, ...], list[tuple[int, int]]] = {}
+    for t in star.tolist():
+        row = tets[t]
+        for f in range(4):
+            if row[f] != v:
+                seen.setdefault(tuple(sorted(row[FACE_VERTICES[f]].tolist())), []).append((t, f))
+    codes, normals = set(), []
+    for sides in seen.values():
+        own = [int(region[t]) for t, _ in sides]
+        if len(sides) == 2 and own[0] == own[1]:
+            continue
+        i = int(np.argmax(own)) if len(sides) == 2 else 0
+        codes.add((max(own), min(own) if len(sides) == 2 else -1))
+        t, f = sides[i]
+        p = points_mm[tets[t, FACE_VERTICES[f]]]
+        normals.append(np.cross(p[1] - p[0], p[2] - p[0]))
+    if not codes:
+        return False, np.eye(3)
+    area = np.asarray(normals)
+    n = area.sum(axis=0)
+    n /= max(float(np.linalg.norm(n)), 1e-300)
+    unit = area / np.maximum(np.linalg.norm(area, axis=1), 1e-300)[:, None]
+    smooth = float((unit @ n).min()) >= np.cos(np.radians(SMOOTH_DEG))
+    return len(codes) > 1 or not smooth, np.eye(3) - np.outer(n, n)
 
 
 def _ideal(points_mm: FloatArray, tets: IntArray, star: IntArray, v: int) -> FloatArray:
@@ -162,10 +192,7 @@ def _star_score(points_mm: FloatArray, star_tets: IntArray, v: int,
     p = np.broadcast_to(points_mm[star_tets], (len(candidates), *star_tets.shape, 3)).copy()
     slot = star_tets == v
     p[:, slot] = candidates[:, None, :]
-    flat = p.reshape(-1, 3)
-    ids = np.arange(len(flat)).reshape(-1, 4)
-    angles = _min_dihedral(flat, ids).reshape(len(candidates), -1)
-    vols = signed_volumes_mm3(flat, ids).reshape(len(candidates), -1)
+    angles, vols = min_dihedral_and_volume(p)
     score = angles.min(axis=1) - 1000.0 * (angles < threshold_deg).sum(axis=1)
     return np.where((vols > 0).all(axis=1), score, -np.inf)
 
