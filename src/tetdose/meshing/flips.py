@@ -21,9 +21,10 @@ only when the smallest q of the new tetrahedra exceeds the smallest q of the one
    (a, b, c, e) become (d, e, a, b), (d, e, b, c), (d, e, c, a); the six outer faces stay.
 3. **Reassignment** of t when at least two of its faces lie on the surface towards the same
    side X (the outer boundary, or the region X across an interface): t moves to X (is deleted
-   when X is the outside). This changes the surface locally by a flat tetrahedron, i.e. a
-   volume of the order of the sliver's (a few 10⁻³ mm³), and is done only when the edge that
-   becomes a surface edge has no other tetrahedron of X around it (no pinched surface).
+   when X is the outside). This is done only for flat tetrahedra (smallest altitude ≤
+   ``FLAT_FRACTION`` × mean edge), so the surface moves by less than that altitude and the
+   volumes by the sliver's (≪ 1 mm³), and only when the edge that becomes a surface edge has
+   no other tetrahedron of X around it (no pinched surface).
    A flip reaching the threshold is preferred; reassignment comes next; otherwise the best
    improving flip is taken.
 """
@@ -39,6 +40,9 @@ from tetdose.mesh import FACE_VERTICES
 MAX_RING = 12
 #: A move must raise the smallest dihedral angle of the tetrahedra it replaces by this [°].
 MIN_GAIN_DEG = 1e-6
+#: Only tetrahedra whose smallest altitude is at most this fraction of their mean edge change
+#: side (move 3): flat ones, so that the surface moves by less than that altitude.
+FLAT_FRACTION = 0.15
 #: Region value for "outside the mesh".
 OUTSIDE = -1
 #: The six edges (i, j) of a tetrahedron by local vertex index.
@@ -138,6 +142,16 @@ class _Mesh:
             ring.append(v)
         return (ring, ids) if len(ring) == len(ids) and nxt.get(ring[-1]) == start else None
 
+    def closed(self, a: int, b: int) -> bool:
+        """Whether every face through edge (a, b) has two tetrahedra (the edge is not on the
+        outer boundary), whatever their regions."""
+        count: dict[int, int] = {}
+        for t in self.star(a) & self.star(b):
+            for v in self.tets[t].tolist():
+                if v != a and v != b:
+                    count[v] = count.get(v, 0) + 1
+        return bool(count) and all(c == 2 for c in count.values())
+
     def neighbour(self, t: int, f: int) -> int:
         """Tet across face ``f`` (opposite local vertex f) of tet ``t``, or −1."""
         a, b, c = self.tets[t, FACE_VERTICES[f]].tolist()
@@ -178,8 +192,21 @@ def _edge_removal(mesh: _Mesh, a: int, b: int, ring: list[int]) -> tuple[float, 
     return best[0, n - 1], np.asarray(out, dtype=np.intp)
 
 
+def _flat(points_mm: FloatArray, tet: IntArray) -> bool:
+    """Whether the tetrahedron's smallest altitude 3V / max face area is at most
+    ``FLAT_FRACTION`` × its mean edge (a sliver or cap, not merely a badly shaped one)."""
+    p = points_mm[tet]
+    area = max(float(np.linalg.norm(np.cross(*(p[FACE_VERTICES[f][1:]] - p[FACE_VERTICES[f][0]]))))
+               for f in range(4)) / 2.0
+    volume = abs(float(np.dot(p[1] - p[0], np.cross(p[2] - p[0], p[3] - p[0])))) / 6.0
+    edge = np.mean([np.linalg.norm(p[j] - p[i]) for i, j in _EDGE_PAIRS])
+    return 3.0 * volume / max(area, 1e-300) <= FLAT_FRACTION * edge
+
+
 def _reassignment(mesh: _Mesh, t: int) -> int | None:
     """Region t may move to (module doc, 3: ``OUTSIDE`` = delete), or None."""
+    if not _flat(mesh.points, mesh.tets[t]):
+        return None
     sides = [mesh.neighbour(t, f) for f in range(4)]
     own = int(mesh.region[t])
     side_region = [OUTSIDE if u < 0 else int(mesh.region[u]) for u in sides]
@@ -195,7 +222,7 @@ def _reassignment(mesh: _Mesh, t: int) -> int | None:
             a, b = int(mesh.tets[t, i]), int(mesh.tets[t, j])
             around = (mesh.star(a) & mesh.star(b)) - {t}
             if x == OUTSIDE:
-                if mesh.ring(a, b) is None:  # already on the boundary: a pinched surface
+                if not mesh.closed(a, b):  # already on the boundary: a pinched surface
                     return None
             elif any(int(mesh.region[u]) == x for u in around):
                 return None
