@@ -1,10 +1,11 @@
-"""Sliver removal by guarded vertex relocation (after MMG, which optimises a radius-ratio
-quality and can leave a few flat tetrahedra with good edges at curved surfaces and ridges).
+"""Sliver removal after MMG (which optimises a radius-ratio quality and can leave a few flat
+tetrahedra with good edges at curved surfaces and ridges): guarded vertex relocation, then
+topological moves (:mod:`tetdose.meshing.flips`), each followed by relocation again.
 
-For every tetrahedron whose smallest dihedral angle is below the threshold, each of its vertices
-that may move is relocated by a compass search maximising the smallest dihedral angle of its
-star (Freitag & Ollivier-Gooch, IJNME 40 (1997) 3979: local optimisation of the worst angle),
-first reducing the number of the star's tetrahedra below the threshold:
+Relocation. For every tetrahedron whose smallest dihedral angle is below the threshold, each of
+its vertices that may move is relocated by a compass search maximising the smallest dihedral
+angle of its star (Freitag & Ollivier-Gooch, IJNME 40 (1997) 3979: local optimisation of the
+worst angle), first reducing the number of the star's tetrahedra below the threshold:
 candidates are the ideal position — the mean over the star of the apex of the regular
 tetrahedron on the opposite face, c_f + n_f·√(2/3)·ē_f — and steps along 14 directions (axes
 and diagonals), halving from ½ of the mean edge; a move is kept only when it raises the star's
@@ -13,8 +14,16 @@ smallest angle with every volume positive.
 Free vertices (inside one region) move in 3-D. A vertex on exactly one surface (the outer
 boundary or one interface) where that surface is smooth (its faces' normals within
 ``SMOOTH_DEG`` of their mean n) moves in the tangent plane only, x + (I − n nᵀ) d, which keeps
-it within about |d|²κ/2 of the surface. Vertices on junctions of surfaces or ridges never move,
-so conformity is unchanged and volumes change by that second-order term only.
+it within about |d|²κ/2 of the surface. Vertices on junctions of surfaces or ridges are fixed
+in the first rounds, so conformity is unchanged and volumes change by that second-order term
+only.
+
+Topology. Up to ``TOPOLOGY_ROUNDS`` rounds of edge removal / 2-3 flips inside one region and
+reassignment of flat surface tetrahedra (flips.py), each followed by relocation; from the second
+round on, the fixed vertices of the tetrahedra still bad may move too, in 3-D, at most
+``FIXED_MOVE_FRACTION`` of their star's mean longest edge (a bounded surface deviation: the
+slivers left then have all four vertices on ridges or junctions). Faces are never shared by
+more than two tetrahedra, so the mesh stays conforming.
 """
 
 from __future__ import annotations
