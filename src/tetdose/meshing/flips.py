@@ -35,6 +35,7 @@ import numpy as np
 
 from tetdose._typing import FloatArray, IntArray
 from tetdose.mesh import FACE_VERTICES
+from tetdose.meshing._relocation_kernels import min_dihedral_vol6
 
 #: Largest ring of tetrahedra around an edge considered for edge removal.
 MAX_RING = 12
@@ -51,10 +52,8 @@ _EDGE_PAIRS = ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3))
 
 def tet_quality(points_mm: FloatArray, tets: IntArray) -> FloatArray:
     """Smallest dihedral angle [°] of each tetrahedron; −∞ where its signed volume ≤ 0."""
-    from tetdose.meshing.quality import min_dihedral_and_volume
-
-    q, vol6 = min_dihedral_and_volume(points_mm[np.asarray(tets, dtype=np.intp).reshape(-1, 4)])
-    return np.where(vol6 > 0.0, q, -np.inf)
+    angle, vol6 = min_dihedral_vol6(points_mm, np.asarray(tets, dtype=np.intp).reshape(-1, 4))
+    return np.where(vol6 > 0.0, angle, -np.inf)
 
 
 def _even(perm: tuple[int, ...]) -> bool:

@@ -32,6 +32,7 @@ import numpy as np
 
 from tetdose._typing import FloatArray, IntArray
 from tetdose.mesh import FACE_VERTICES
+from tetdose.meshing._relocation_kernels import compass_search, min_dihedral_vol6
 
 #: Relocation rounds over the remaining bad tetrahedra.
 ROUNDS = 3
@@ -78,7 +79,7 @@ def min_dihedral_and_volume(p: FloatArray) -> tuple[FloatArray, FloatArray]:
 
 
 def _min_dihedral(points_mm: FloatArray, tets: IntArray) -> FloatArray:
-    return min_dihedral_and_volume(points_mm[tets])[0]
+    return min_dihedral_vol6(points_mm, np.asarray(tets, dtype=np.intp).reshape(-1, 4))[0]
 
 
 def _stars(n_points: int, tets: IntArray) -> tuple[IntArray, IntArray]:
@@ -127,11 +128,14 @@ def relocated(points_mm: FloatArray, tets: IntArray, region: IntArray, min_dihed
     if bad.size == 0:
         return points, bad
     offsets, star_tets = _stars(len(points), tets)
+    frames: dict[int, tuple[bool, FloatArray]] = {}
     for _ in range(ROUNDS):
         touched = []
         for v in np.unique(tets[bad]).tolist():
             star = star_tets[offsets[v]:offsets[v + 1]]
-            fixed, projector = _frame(points, tets, region, star, v)
+            if v not in frames:  # the surface normal at the start of the pass
+                frames[v] = _frame(points, tets, region, star, v)
+            fixed, projector = frames[v]
             if fixed and fixed_move_fraction <= 0:
                 continue
             if fixed:
@@ -156,25 +160,28 @@ def _frame(points_mm: FloatArray, tets: IntArray, region: IntArray, star: IntArr
     """Whether vertex ``v`` is fixed, and the projector (3, 3) of its allowed moves (module
     doc), from the faces through ``v`` of its star ``star``: a face there once is on the outer
     boundary, twice with two regions on an interface (oriented from the higher region)."""
-    seen: dict[tuple[int, ...], list[tuple[int, int]]] = {}
-    for t in star.tolist():
-        row = tets[t]
-        for f in range(4):
-            if row[f] != v:
-                seen.setdefault(tuple(sorted(row[FACE_VERTICES[f]].tolist())), []).append((t, f))
-    codes, normals = set(), []
-    for sides in seen.values():
-        own = [int(region[t]) for t, _ in sides]
-        if len(sides) == 2 and own[0] == own[1]:
-            continue
-        i = int(np.argmax(own)) if len(sides) == 2 else 0
-        codes.add((max(own), min(own) if len(sides) == 2 else -1))
-        t, f = sides[i]
-        p = points_mm[tets[t, FACE_VERTICES[f]]]
-        normals.append(np.cross(p[1] - p[0], p[2] - p[0]))
-    if not codes:
+    st = tets[star]
+    local = np.argmax(st == v, axis=1)
+    f = np.arange(4)[None, :] != local[:, None]  # faces through v
+    which = np.nonzero(f)
+    faces = st[which[0][:, None], FACE_VERTICES[which[1]]]  # (3S, 3), outward
+    own = region[star][which[0]]
+    key = np.sort(faces, axis=1)
+    _, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    inverse = inverse.ravel()
+    lo = np.full(len(counts), np.iinfo(np.int64).max)
+    hi = np.full(len(counts), -1, dtype=np.int64)
+    np.minimum.at(lo, inverse, own)
+    np.maximum.at(hi, inverse, own)
+    single = counts[inverse] == 1
+    surface = single | (lo[inverse] != hi[inverse])
+    keep = surface & (single | (own == hi[inverse]))  # each interface face from its higher side
+    if not keep.any():
         return False, np.eye(3)
-    area = np.asarray(normals)
+    other = np.where(single, -1, lo[inverse])
+    codes = np.unique(own[keep] * (int(region.max()) + 2) + other[keep] + 1)
+    p = points_mm[faces[keep]]
+    area = _cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
     n = area.sum(axis=0)
     n /= max(float(np.linalg.norm(n)), 1e-300)
     unit = area / np.maximum(np.linalg.norm(area, axis=1), 1e-300)[:, None]
@@ -193,43 +200,18 @@ def _ideal(points_mm: FloatArray, tets: IntArray, star: IntArray, v: int) -> Flo
     return (p.mean(axis=1) + normal * np.sqrt(2.0 / 3.0) * edge[:, None]).mean(axis=0)
 
 
-def _star_score(points_mm: FloatArray, star_tets: IntArray, v: int,
-                candidates: FloatArray, threshold_deg: float) -> FloatArray:
-    """Score of the star with ``v`` at each candidate position (C, 3): its smallest dihedral
-    angle [°] minus 1000 per tetrahedron below ``threshold_deg`` (fewer bad ones first);
-    −inf where a tetrahedron would invert."""
-    p = np.broadcast_to(points_mm[star_tets], (len(candidates), *star_tets.shape, 3)).copy()
-    slot = star_tets == v
-    p[:, slot] = candidates[:, None, :]
-    angles, vols = min_dihedral_and_volume(p)
-    score = angles.min(axis=1) - 1000.0 * (angles < threshold_deg).sum(axis=1)
-    return np.where((vols > 0).all(axis=1), score, -np.inf)
-
-
 def _relocated(points_mm: FloatArray, tets: IntArray, star: IntArray, v: int,
                projector: FloatArray, threshold_deg: float, bound_fraction: float = np.inf
                ) -> FloatArray:
     """Compass search (module doc) for the position of ``v``, moves projected by ``projector``
     and kept within ``bound_fraction`` × the star's mean longest edge of the start."""
     star_tets = tets[star]
-    edge = np.linalg.norm(points_mm[star_tets] - points_mm[v], axis=2).max(axis=1).mean()
+    star_pts = points_mm[star_tets]
+    edge = float(np.linalg.norm(star_pts - points_mm[v], axis=2).max(axis=1).mean())
     dirs = _DIRS @ projector
-    dirs = dirs[np.linalg.norm(dirs, axis=1) > 0.3]
-    x0 = points_mm[v].copy()
-    x = x0.copy()
-    radius = bound_fraction * edge
-    best = _star_score(points_mm, star_tets, v, x[None], threshold_deg)[0]
+    dirs = np.ascontiguousarray(dirs[np.linalg.norm(dirs, axis=1) > 0.3])
+    slot = np.argmax(star_tets == v, axis=1)
     ideal = _ideal(points_mm, tets, star, v)
-    step = min(0.5 * edge, radius)
-    for _ in range(SEARCH_ITERATIONS):
-        cand = np.concatenate([x + step * dirs, [x + 0.5 * projector @ (ideal - x)]])
-        score = _star_score(points_mm, star_tets, v, cand, threshold_deg)
-        score[np.linalg.norm(cand - x0, axis=1) > radius] = -np.inf
-        i = int(np.argmax(score))
-        if score[i] > best:
-            best, x = score[i], cand[i]
-        else:
-            step *= 0.5
-            if step < 0.02 * edge:
-                break
-    return x
+    return compass_search(star_pts, slot, points_mm[v].copy(), ideal, dirs,
+                          np.ascontiguousarray(projector), edge, bound_fraction * edge,
+                          threshold_deg, SEARCH_ITERATIONS)
