@@ -41,10 +41,11 @@ def tet_min_dihedral_vol6(q: np.ndarray) -> tuple[float, float]:
 
 
 @njit(cache=True)
-def star_score(star_pts: np.ndarray, slot: np.ndarray, x: np.ndarray,
-               threshold_deg: float) -> float:
+def star_score(star_pts: np.ndarray, slot: np.ndarray, x: np.ndarray, threshold_deg: float,
+               count_weight: float) -> float:
     """Smallest dihedral angle [°] of the star (S, 4, 3) with vertex slot[s] of tet s at x,
-    minus 1000 per tetrahedron below ``threshold_deg``; −inf if one is not positive."""
+    minus ``count_weight`` per tetrahedron below ``threshold_deg``; −inf if one is not
+    positive."""
     q = np.empty((4, 3))
     worst = np.inf
     n_bad = 0
@@ -58,18 +59,18 @@ def star_score(star_pts: np.ndarray, slot: np.ndarray, x: np.ndarray,
         worst = min(worst, angle)
         if angle < threshold_deg:
             n_bad += 1
-    return worst - 1000.0 * n_bad
+    return worst - count_weight * n_bad
 
 
 @njit(cache=True)
 def compass_search(star_pts: np.ndarray, slot: np.ndarray, x0: np.ndarray, ideal: np.ndarray,
                    dirs: np.ndarray, projector: np.ndarray, edge: float, radius: float,
-                   threshold_deg: float, iterations: int) -> np.ndarray:
+                   threshold_deg: float, count_weight: float, iterations: int) -> np.ndarray:
     """Best position [mm] of the vertex: steps ``dirs`` (D, 3) halving from min(½ edge, radius)
     down to 0.02 edge, plus the move ½ P (ideal − x) towards ``ideal``, each within ``radius``
     of x0; a step is kept only when it raises :func:`star_score`."""
     x = x0.copy()
-    best = star_score(star_pts, slot, x, threshold_deg)
+    best = star_score(star_pts, slot, x, threshold_deg, count_weight)
     step = min(0.5 * edge, radius)
     cand = np.empty(3)
     pick = np.empty(3)
@@ -86,7 +87,7 @@ def compass_search(star_pts: np.ndarray, slot: np.ndarray, x0: np.ndarray, ideal
             if math.sqrt((cand[0] - x0[0]) ** 2 + (cand[1] - x0[1]) ** 2
                          + (cand[2] - x0[2]) ** 2) > radius:
                 continue
-            score = star_score(star_pts, slot, cand, threshold_deg)
+            score = star_score(star_pts, slot, cand, threshold_deg, count_weight)
             if score > top:
                 top = score
                 pick[:] = cand

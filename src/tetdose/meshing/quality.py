@@ -18,11 +18,11 @@ it within about |d|²κ/2 of the surface. Vertices on junctions of surfaces or r
 in the first rounds, so conformity is unchanged and volumes change by that second-order term
 only.
 
-Topology. Up to ``TOPOLOGY_ROUNDS`` rounds of edge removal / 2-3 flips inside one region and
-reassignment of flat surface tetrahedra (flips.py), each followed by relocation; from the second
-round on, the fixed vertices of the tetrahedra still bad may move too, in 3-D, at most
-``FIXED_MOVE_FRACTION`` of their star's mean longest edge (a bounded surface deviation: the
-slivers left then have all four vertices on ridges or junctions). Faces are never shared by
+Topology. Three rounds of edge removal / 2-3 flips inside one region and reassignment of flat
+surface tetrahedra (flips.py), each followed by relocation; in the second and third rounds the
+fixed vertices of the tetrahedra still bad may move too, in 3-D, at most 0.2 and then 0.35 of
+their star's mean longest edge (``FIXED_MOVE_FRACTIONS``: a bounded surface deviation, for the
+few slivers whose free vertices cannot fix them). Faces are never shared by
 more than two tetrahedra, so the mesh stays conforming.
 """
 
@@ -38,11 +38,10 @@ from tetdose.meshing._relocation_kernels import compass_search, min_dihedral_vol
 ROUNDS = 3
 #: Compass-search iterations per vertex.
 SEARCH_ITERATIONS = 30
-#: Rounds of topological moves (flips.py), each followed by relocation.
-TOPOLOGY_ROUNDS = 3
-#: After the first round, junction and ridge vertices of the remaining bad tetrahedra move
-#: within this fraction of their star's mean longest edge.
-FIXED_MOVE_FRACTION = 0.2
+#: Per round of topological moves (flips.py, then relocation): how far junction and ridge
+#: vertices of the remaining bad tetrahedra may move, as a fraction of their star's mean longest
+#: edge (0: fixed). Escalating, so that only the most stubborn slivers move them far.
+FIXED_MOVE_FRACTIONS = (0.0, 0.2, 0.35)
 #: A surface vertex slides only where its faces' normals are within this angle of their mean.
 SMOOTH_DEG = 25.0
 
@@ -96,20 +95,22 @@ def removed_slivers(points_mm: FloatArray, tets: IntArray, region: IntArray,
     """(points, tets, region) with the slivers below ``min_dihedral_deg`` [°] removed (module
     doc): relocation of the free and smooth-surface vertices, then rounds of topological moves
     (:func:`tetdose.meshing.flips.flipped`) each followed by relocation, the later rounds also
-    moving junction and ridge vertices within ``FIXED_MOVE_FRACTION`` of their edges."""
+    moving junction and ridge vertices within ``FIXED_MOVE_FRACTIONS`` of their edges."""
     from tetdose.meshing.flips import flipped
 
     tets = np.asarray(tets, dtype=np.intp)
     region = np.asarray(region, dtype=np.int64)
     bad = np.flatnonzero(_min_dihedral(points_mm, tets) < min_dihedral_deg)
     points, bad = relocated(points_mm, tets, region, min_dihedral_deg, bad)
-    for k in range(TOPOLOGY_ROUNDS):
+    for bound in FIXED_MOVE_FRACTIONS:
         if bad.size == 0:
             break
         tets, region, bad = flipped(points, tets, region, min_dihedral_deg, bad)
-        bound = FIXED_MOVE_FRACTION if k > 0 else 0.0
         points, bad = relocated(points, tets, region, min_dihedral_deg, bad,
                                 fixed_move_fraction=bound)
+    if bad.size:  # last resort: the worst angle alone, even if neighbours drop below the aim
+        points, bad = relocated(points, tets, region, min_dihedral_deg, bad,
+                                fixed_move_fraction=FIXED_MOVE_FRACTIONS[-1], count_weight=0.0)
     used = np.zeros(len(points), dtype=bool)
     used[tets.ravel()] = True
     if not used.all():  # a deleted corner tetrahedron can leave its apex unused
@@ -119,7 +120,8 @@ def removed_slivers(points_mm: FloatArray, tets: IntArray, region: IntArray,
 
 
 def relocated(points_mm: FloatArray, tets: IntArray, region: IntArray, min_dihedral_deg: float,
-              bad: IntArray, *, fixed_move_fraction: float = 0.0) -> tuple[FloatArray, IntArray]:
+              bad: IntArray, *, fixed_move_fraction: float = 0.0, count_weight: float = 1000.0
+              ) -> tuple[FloatArray, IntArray]:
     """(points with the vertices of the bad tetrahedra ``bad`` relocated (module doc), ids of
     the tetrahedra still below ``min_dihedral_deg``); tets unchanged. With
     ``fixed_move_fraction`` > 0 the fixed vertices (junctions, ridges) move too, in 3-D but at
@@ -140,9 +142,10 @@ def relocated(points_mm: FloatArray, tets: IntArray, region: IntArray, min_dihed
                 continue
             if fixed:
                 x = _relocated(points, tets, star, v, np.eye(3), min_dihedral_deg,
-                               fixed_move_fraction)
+                               fixed_move_fraction, count_weight)
             else:
-                x = _relocated(points, tets, star, v, projector, min_dihedral_deg)
+                x = _relocated(points, tets, star, v, projector, min_dihedral_deg, np.inf,
+                               count_weight)
             if np.any(x != points[v]):
                 points[v] = x
                 touched.append(star)
@@ -201,8 +204,8 @@ def _ideal(points_mm: FloatArray, tets: IntArray, star: IntArray, v: int) -> Flo
 
 
 def _relocated(points_mm: FloatArray, tets: IntArray, star: IntArray, v: int,
-               projector: FloatArray, threshold_deg: float, bound_fraction: float = np.inf
-               ) -> FloatArray:
+               projector: FloatArray, threshold_deg: float, bound_fraction: float = np.inf,
+               count_weight: float = 1000.0) -> FloatArray:
     """Compass search (module doc) for the position of ``v``, moves projected by ``projector``
     and kept within ``bound_fraction`` × the star's mean longest edge of the start."""
     star_tets = tets[star]
@@ -214,4 +217,4 @@ def _relocated(points_mm: FloatArray, tets: IntArray, star: IntArray, v: int,
     ideal = _ideal(points_mm, tets, star, v)
     return compass_search(star_pts, slot, points_mm[v].copy(), ideal, dirs,
                           np.ascontiguousarray(projector), edge, bound_fraction * edge,
-                          threshold_deg, SEARCH_ITERATIONS)
+                          threshold_deg, count_weight, SEARCH_ITERATIONS)
