@@ -7,8 +7,6 @@ n_0 = −(n_1 + n_2 + n_3); the dihedral angle between faces i and j is π − �
 smallest one is arccos(−min_{i<j} n̂_i · n̂_j); 6V = −e_1 · n_1.
 """
 
-from __future__ import annotations
-
 import math
 
 import numpy as np
