@@ -58,25 +58,6 @@ def _cross(a: FloatArray, b: FloatArray) -> FloatArray:
                      a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]], axis=-1)
 
 
-def min_dihedral_and_volume(p: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Smallest dihedral angle [°] and 6 × signed volume [mm³] of tetrahedra with vertex
-    coordinates ``p`` (..., 4, 3) [mm].
-
-    With e_k = p_k − p_0, the outward area normals of the faces opposite vertices 1, 2, 3 are
-    n_1 = e_3 × e_2, n_2 = e_1 × e_3, n_3 = e_2 × e_1, and n_0 = −(n_1 + n_2 + n_3); the
-    dihedral angle between faces i and j is π − ∠(n_i, n_j), so the smallest one is
-    arccos(−min_{i<j} n̂_i · n̂_j); 6V = −e_1 · n_1.
-    """
-    e1, e2, e3 = (p[..., k, :] - p[..., 0, :] for k in (1, 2, 3))
-    n1, n2, n3 = _cross(e3, e2), _cross(e1, e3), _cross(e2, e1)
-    n = np.stack([-(n1 + n2 + n3), n1, n2, n3], axis=-2)
-    n = n / np.maximum(np.sqrt((n * n).sum(axis=-1)), 1e-300)[..., None]
-    dots = [(n[..., i, :] * n[..., j, :]).sum(axis=-1) for i, j in
-            ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3))]
-    worst = np.minimum.reduce(dots)
-    return np.degrees(np.arccos(np.clip(-worst, -1.0, 1.0))), -(e1 * n1).sum(axis=-1)
-
-
 def _min_dihedral(points_mm: FloatArray, tets: IntArray) -> FloatArray:
     return min_dihedral_vol6(points_mm, np.asarray(tets, dtype=np.intp).reshape(-1, 4))[0]
 
