@@ -22,8 +22,10 @@ Topology. Three rounds of edge removal / 2-3 flips inside one region and reassig
 surface tetrahedra (flips.py), each followed by relocation; in the second and third rounds the
 fixed vertices of the tetrahedra still bad may move too, in 3-D, at most 0.2 and then 0.35 of
 their star's mean longest edge (``FIXED_MOVE_FRACTIONS``: a bounded surface deviation, for the
-few slivers whose free vertices cannot fix them). Faces are never shared by
-more than two tetrahedra, so the mesh stays conforming.
+few slivers whose free vertices cannot fix them). A last relocation of what is still bad drops
+the count term and maximises the star's smallest angle alone (Freitag & Ollivier-Gooch's
+max-min): neighbours may fall below the aim (12°) but never below the worst angle, which rises.
+Faces are never shared by more than two tetrahedra, so the mesh stays conforming.
 """
 
 from __future__ import annotations
@@ -106,7 +108,8 @@ def relocated(points_mm: FloatArray, tets: IntArray, region: IntArray, min_dihed
     """(points with the vertices of the bad tetrahedra ``bad`` relocated (module doc), ids of
     the tetrahedra still below ``min_dihedral_deg``); tets unchanged. With
     ``fixed_move_fraction`` > 0 the fixed vertices (junctions, ridges) move too, in 3-D but at
-    most that fraction of their star's mean longest edge from where they are."""
+    most that fraction of their star's mean longest edge from where they are. ``count_weight``
+    [°] is subtracted from a star's score per tetrahedron below ``min_dihedral_deg``."""
     points = points_mm.copy()
     if bad.size == 0:
         return points, bad
