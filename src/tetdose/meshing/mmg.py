@@ -251,7 +251,7 @@ def _remeshed(mmgpy, points: FloatArray, tets: IntArray, refs: IntArray,  # noqa
     t, r = (np.asarray(a) for a in mesh.get_tetrahedra_with_refs())
     p, tt, _ = compact_points(p, t.astype(np.intp))
     oriented = TetMesh(p, tt, r.astype(np.int64)).with_fixed_orientation()
-    p = removed_slivers(oriented.points_mm, oriented.tets, oriented.region, MIN_DIHEDRAL_DEG)
-    result = oriented.moved(p)
+    result = TetMesh(*removed_slivers(oriented.points_mm, oriented.tets, oriented.region,
+                                      MIN_DIHEDRAL_DEG))
     result.check_cells(context="in the MMG label mesh")
     return result
