@@ -311,3 +311,27 @@ def test_cli_crop_and_warm_start_options_reach_the_settings():
     assert settings_from(p.parse_args([*base, "--no-crop"])).crop_margin_mm is None
     with pytest.raises(ImageError, match="crop_margin_mm"):
         RegistrationSettings(crop_margin_mm=-1.0)
+
+
+def test_register_to_folder_writes_fields_and_report_that_percents_of_reads(tmp_path):
+    """The library workflow behind ``tetdose register``: fields named by phase, the report
+    listing them, and ``percents_of`` giving back the percents only for one such folder."""
+    from tetdose.io import write_image
+    from tetdose.motion.dvf_folder import REPORT_NAME, percents_of, register_to_folder
+
+    ct = thorax()
+    same = ct.with_array(np.rint(ct.array).astype(np.int16))
+    files = [write_image(tmp_path / f"phase_{p:05.1f}.nrrd", same) for p in (20.0, 70.0)]
+    fast = replace(FAST, iterations=(10, 5))
+    out, percents, reports = register_to_folder(files, 70.0, tmp_path / "dvf", settings=fast,
+                                                progress=False)
+    assert percents == [20.0, 70.0] and [f.name for f in out] == ["phase_020.0.nrrd",
+                                                                   "phase_070.0.nrrd"]
+    assert all(f.exists() and np.abs(read_dvf(f).vectors_mm).max() < 0.1 for f in out)
+    doc = json.loads((tmp_path / "dvf" / REPORT_NAME).read_text())
+    assert doc["reference_percent"] == 70.0 and doc["settings"]["iterations"] == [10, 5]
+    assert [r.as_dict()["percent"] for r in reports] == [20.0, 70.0]
+    assert percents_of(out[::-1]) == [70.0, 20.0]  # in the order given
+    stray = tmp_path / "elsewhere.nrrd"
+    stray.write_bytes(out[0].read_bytes())
+    assert percents_of([out[0], stray]) is None  # not all from one register folder

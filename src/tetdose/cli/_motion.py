@@ -90,9 +90,10 @@ def _add_4dct_args(p: argparse.ArgumentParser) -> None:
 
 def _motion_series(args: argparse.Namespace, reference: TetMesh, out_dir: Path) -> PhaseSeries:
     """The source the options name (``--4dct``: registered into ``out_dir/dvf`` first)."""
-    from tetdose.cli._register import percents_of, print_reports, register_to
+    from tetdose.cli._register import print_reports, register_to
     from tetdose.errors import OptionError, TetdoseError
     from tetdose.motion import BreathingModel
+    from tetdose.motion.dvf_folder import percents_of
     from tetdose.motion.source import FemOptions, check_reference, phase_series
 
     pct = args.phase_percent

@@ -9,16 +9,11 @@ the exit code is 2.
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from tetdose.motion.register import RegistrationReport, RegistrationSettings
-
-#: Name of the registration report written beside the fields.
-REPORT_NAME = "register.json"
-
 
 def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--4dct", dest="ct4d", required=True, type=Path, nargs="+", metavar="CT4D",
@@ -74,29 +69,14 @@ def settings_from(args: argparse.Namespace) -> RegistrationSettings:
 
 def register_to(args: argparse.Namespace, out_dir: Path) -> tuple[list[Path], list[float],
                                                                  list[RegistrationReport]]:
-    """Read ``args.ct4d``, register every phase to ``args.reference``, write into ``out_dir``."""
-    from tetdose.motion.ct4d_read import find_phase, read_4dct
-    from tetdose.motion.dvf import write_dvf
-    from tetdose.motion.register import register_4dct
+    """The options' 4D-CT registered into ``out_dir`` (:func:`~tetdose.motion.dvf_folder.
+    register_to_folder`)."""
+    from tetdose.motion.dvf_folder import register_to_folder
 
-    phases = read_4dct(ct4d_source(args.ct4d))
-    ref = find_phase(phases, args.reference)
-    mask = None if args.mask is None else _mask_on(args.mask, phases[ref].image)
-    percents = [p.percent for p in phases]
-    results = register_4dct([p.image for p in phases], ref, percents=percents, mask=mask,
-                            settings=settings_from(args),
-                            inverse_consistency=args.inverse_consistency, progress=not args.quiet)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    names = [f"phase_{p:05.1f}.nrrd" for p in percents]
-    for name, (field, _) in zip(names, results, strict=True):
-        write_dvf(out_dir / name, field)
-    reports = [r for _, r in results]
-    doc = {"reference_percent": percents[ref], "ct4d": [str(p) for p in args.ct4d],
-           "settings": vars(settings_from(args)),
-           "phases": [{"file": n, "source": p.source, **r.as_dict()}
-                      for n, p, r in zip(names, phases, reports, strict=True)]}
-    (out_dir / REPORT_NAME).write_text(json.dumps(doc, indent=2))
-    return [out_dir / n for n in names], percents, reports
+    return register_to_folder(ct4d_source(args.ct4d), args.reference, out_dir, mask=args.mask,
+                              settings=settings_from(args),
+                              inverse_consistency=args.inverse_consistency,
+                              progress=not args.quiet)
 
 
 def ct4d_source(paths: list[Path]) -> Path | list[Path]:
@@ -117,35 +97,9 @@ def print_reports(reports: list[RegistrationReport], command: str) -> int:
     return code
 
 
-def percents_of(dvf_files: list[Path]) -> list[float] | None:
-    """Phase percentages of DVFs written by ``register`` (from its report), else None."""
-    folders = {f.parent for f in dvf_files}
-    if len(folders) != 1 or not (report := next(iter(folders)) / REPORT_NAME).exists():
-        return None
-    by_name = {p["file"]: p["percent"] for p in json.loads(report.read_text())["phases"]}
-    if not all(f.name in by_name for f in dvf_files):
-        return None
-    return [float(by_name[f.name]) for f in dvf_files]
-
-
-def _mask_on(path: Path, like):  # noqa: ANN001, ANN202
-    """Non-zero voxels of a label image, resampled onto ``like``'s grid (nearest, physical)."""
-    import numpy as np
-    import SimpleITK as sitk
-
-    from tetdose.errors import ImageError
-    from tetdose.io import read_image
-
-    mask = read_image(path)
-    arr = mask.array if mask.grid.same_as(like.grid) else sitk.GetArrayFromImage(sitk.Resample(
-        mask.to_sitk(), like.to_sitk(), sitk.Transform(), sitk.sitkNearestNeighbor, 0))
-    if not np.any(arr):
-        raise ImageError(f"the mask {path} holds no non-zero voxel on the reference phase's grid")
-    return arr != 0
-
-
 def run(args: argparse.Namespace) -> int:
     from tetdose._atomic import atomic_write_dir
+    from tetdose.motion.dvf_folder import REPORT_NAME
 
     with atomic_write_dir(args.output) as tmp:
         files, _, reports = register_to(args, Path(tmp))
