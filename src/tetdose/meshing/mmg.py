@@ -9,10 +9,10 @@ level sets, Mmg v5.5+; bound through ``mmgpy``):
    labels l | m is the zero set of ψ_lm = (φ_l − φ_m)/2 — the same surface seen from both sides,
    so nested labels (tumour in lung) and side-by-side labels (liver next to kidney) are alike.
 2. **Background mesh.** A Kuhn grid of the labels' box (edge = the largest target size) is
-   adapted by MMG to the size field s(x) = min_l (h_s,l + ½|φ_l(x)|), fine (h_s,l ≈ h_l/3, at
-   least one voxel) near every label surface and graded away from it: the zero sets of the
-   piecewise-linear φ are then accurate where they matter (a 6 mm uniform background shrank a
-   2.5 cm tumour by 17 %).
+   adapted by MMG to the size field s(x) = min_l (h_s,l + g|φ_l(x)|), g = ``GRADING``, fine
+   (h_s,l = h_l/2, at least one voxel) near every label surface and graded away from it: the
+   zero sets of the piecewise-linear φ are then accurate where they matter (a 6 mm uniform
+   background shrank a 2.5 cm tumour by 17 %).
 3. **Volume.** Per label, the constant shift δ_l for which {ψ_l < δ_l}, ψ_l = (φ_l − min_m φ_m)/2
    on the background mesh, has exactly the voxel volume (:func:`levelset.volume_shift`); δ is a
    fraction of a voxel (it takes back the blur's curvature shift and the linear interpolation's
@@ -22,7 +22,8 @@ level sets, Mmg v5.5+; bound through ``mmgpy``):
    ψ_l = (φ_l − min_{m unassigned} φ_m)/2 into label l and the rest, keeping every label already
    cut (multi-material table, ``split = 0``). Labels far enough apart share one MMG call on
    ψ_B = min_{l∈B} ψ_l when that changes no zero crossing of any ψ_l (:func:`_next_batch`): the
-   31 labels of an abdomen map take 7 calls instead of 31, each a pass over the whole mesh.
+   31 labels of the real abdomen map took 11–14 calls instead of 31, each a pass over the whole
+   mesh (chains of touching labels keep their order and set the count).
    The tetrahedra of the rest are dropped at the end.
 5. **Remeshing.** MMG remeshes the labelled mesh with a target edge h_l per label (local
    parameters on tetrahedron references), a Hausdorff tolerance on the interfaces and a size
@@ -56,12 +57,13 @@ from tetdose.phantoms import _tetgrid
 #: Blur of the distance fields [voxels], against the voxel staircase.
 SMOOTHING_VOX = 0.75
 #: Background size near a label surface, as a fraction of the label's target edge (at least one
-#: voxel). 0.5 made the cut surfaces finer than the final mesh and the remesh 1.7× slower (9
-#: abdomen labels: 146 k → 86 k tets, volumes within 0.7 % either way; bench_meshing.py).
+#: voxel). 1.0 (with GRADING 1.0) meshed 9 abdomen labels in 90 s instead of 347 s but moved a
+#: small box touching another by 3.5 % and made MMG's final remesh fail on the 31-label map.
 SURFACE_FRACTION = 0.5
-#: Growth of the background size with the distance to the nearest surface [mm/mm] (0.5 gave a
-#: 1.9 M-tet background for the 31-label abdomen map, 1.0 570 k).
-GRADING = 1.0
+#: Growth of the background size with the distance to the nearest surface [mm/mm]. 1.0 shrank
+#: the 31-label abdomen background from 1.9 M to 570 k tets, but with SURFACE_FRACTION 0.5 the
+#: final remesh of 9 labels then ran > 5 min CPU (64 s at 0.5): kept at 0.5 until understood.
+GRADING = 0.5
 #: Hausdorff tolerance on the interfaces, as a fraction of the label's target edge.
 HAUSD_FRACTION = 0.1
 #: Size gradation between neighbouring edges (MMG ``hgrad``).
