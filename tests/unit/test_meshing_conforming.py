@@ -174,6 +174,17 @@ def test_same_input_same_mesh() -> None:
     np.testing.assert_array_equal(a.region, b.region)
 
 
+def test_tets_below_the_required_angle_are_warned(monkeypatch) -> None:  # noqa: ANN001
+    """A mesh whose smallest angle misses the requirement is not silent: the warning names the
+    labels and the fix (the requirement raised above any real angle forces the case)."""
+    from tetdose.meshing import checks, mmg
+
+    monkeypatch.setattr(mmg, "REQUIRED_DIHEDRAL_DEG", 89.0)
+    with pytest.warns(UserWarning, match=r"label\(s\) \[1, 2\] stay below 89°.*--size-mm"):
+        mesh = conforming_mesh(_two_balls(), None, {1: 6.0, 2: 3.0})
+    assert checks.dihedral_angles_deg(mesh.points_mm, mesh.tets).min() >= 10.0  # as required
+
+
 def test_flipped_direction_meshes_in_patient_coordinates(scene) -> None:  # noqa: ANN001
     # The same voxels stored with a y-flipped direction: same physical mesh volume per label.
     g = scene.grid

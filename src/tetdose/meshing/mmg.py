@@ -40,6 +40,7 @@ The output is deterministic for the same input and options (MMG is sequential an
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Iterable, Mapping
 from typing import NamedTuple
 
@@ -51,6 +52,7 @@ from tetdose.errors import MeshError
 from tetdose.image import Image
 from tetdose.mesh import TetMesh, compact_points, signed_volumes_mm3
 from tetdose.meshing import levelset
+from tetdose.meshing.checks import dihedral_angles_deg
 from tetdose.meshing.distance import DistanceField, signed_distance
 from tetdose.meshing.labels import checked_label_ids, default_sizes_mm
 from tetdose.meshing.quality import removed_slivers
@@ -72,6 +74,8 @@ HAUSD_FRACTION = 0.1
 HGRAD = 1.4
 #: Tetrahedra with a smaller dihedral angle [°] get their free vertices relocated (quality.py).
 MIN_DIHEDRAL_DEG = 12.0
+#: Smallest dihedral angle [°] every tetrahedron must reach (issue #11); below it, a warning.
+REQUIRED_DIHEDRAL_DEG = 10.0
 #: Smallest edge MMG may make, as a fraction of the smallest target edge (fewer slivers).
 HMIN_FRACTION = 0.25
 
@@ -335,4 +339,11 @@ def _remeshed(mmgpy, points: FloatArray, tets: IntArray, refs: IntArray,  # noqa
     result = TetMesh(*removed_slivers(oriented.points_mm, oriented.tets, oriented.region,
                                       MIN_DIHEDRAL_DEG))
     result.check_cells(context="in the MMG label mesh")
+    angles = dihedral_angles_deg(result.points_mm, result.tets).min(axis=1)
+    if (n_bad := int(np.count_nonzero(angles < REQUIRED_DIHEDRAL_DEG))):
+        labels = sorted(np.unique(result.region[angles < REQUIRED_DIHEDRAL_DEG]).tolist())
+        warnings.warn(f"{n_bad} tetrahedra of label(s) {labels} stay below "
+                      f"{REQUIRED_DIHEDRAL_DEG:g}° (smallest {angles.min():.1f}°) after the "
+                      "sliver repair; give those labels another target size (--size-mm L=H)",
+                      stacklevel=2)
     return result
