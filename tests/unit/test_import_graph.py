@@ -82,6 +82,20 @@ def test_no_module_imports_another_modules_private_names():
     assert not found, "private names imported across modules:\n" + "\n".join(found)
 
 
+def test_private_modules_are_imported_only_inside_their_package():
+    """``tetdose.pkg._mod`` serves ``tetdose.pkg`` (and its subpackages) only; the shared
+    infrastructure ``tetdose._x`` serves every module."""
+    found = []
+    for module in MODULES:
+        for base, name, _ in _imports(module):
+            target = f"{base}.{name}" if name and f"{base}.{name}" in MODULES else base
+            parent, _, leaf = target.rpartition(".")
+            if (leaf.startswith("_") and not leaf.startswith("__") and parent != "tetdose"
+                    and not (module == parent or module.startswith(parent + "."))):
+                found.append(f"{module} imports {target}")
+    assert not found, "private modules imported from another package:\n" + "\n".join(found)
+
+
 def _cycles(edges: dict[str, set[str]]) -> list[list[str]]:
     """Strongly connected groups of more than one module (iterative Tarjan)."""
     index: dict[str, int] = {}

@@ -5,16 +5,16 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from tetdose import tetgrid
 from tetdose.errors import MeshError
 from tetdose.mesh import TetMesh
-from tetdose.phantoms import _tetgrid
 
 
 def _two_blocks(shared: bool) -> TetMesh:
     """Two 2×2×2-cell Kuhn blocks side by side along x (regions 1, 2); their touching face shares
     vertices when ``shared``, else each block has its own copies of them."""
-    pts = _tetgrid.grid_nodes(np.zeros(3), np.ones(3), (4, 2, 2))
-    tets = _tetgrid.grid_tets((4, 2, 2))
+    pts = tetgrid.grid_nodes(np.zeros(3), np.ones(3), (4, 2, 2))
+    tets = tetgrid.grid_tets((4, 2, 2))
     region = np.where(pts[tets].mean(axis=1)[:, 0] < 2.0, 1, 2)
     if shared:
         return TetMesh(pts, tets, region)

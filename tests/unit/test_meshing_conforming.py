@@ -212,10 +212,10 @@ def test_fraction_below_matches_sampling() -> None:
 
 def test_volume_shift_recovers_a_plane_offset() -> None:
     # f = x − 0.2 on a unit-cube mesh: {f < δ} has volume 0.2 + δ; ask for 0.5 → δ = 0.3.
-    from tetdose.phantoms import _tetgrid
+    from tetdose import tetgrid
 
-    pts = _tetgrid.grid_nodes(np.zeros(3), np.full(3, 0.25), (4, 4, 4))
-    tets = _tetgrid.grid_tets((4, 4, 4))
+    pts = tetgrid.grid_nodes(np.zeros(3), np.full(3, 0.25), (4, 4, 4))
+    tets = tetgrid.grid_tets((4, 4, 4))
     vols = np.abs(signed_volumes_mm3(pts, tets))
     f = (pts[:, 0] - 0.2)[tets]
     assert levelset.volume_shift(f, vols, 0.5, 0.1) == pytest.approx(0.3, abs=1e-4)

@@ -10,12 +10,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tetdose import tetgrid
 from tetdose.mesh import FACE_VERTICES, TetMesh, signed_volumes_mm3
 from tetdose.meshing._relocation_kernels import min_dihedral_vol6
 from tetdose.meshing.checks import conformity, dihedral_angles_deg
 from tetdose.meshing.flips import flipped, tet_quality
 from tetdose.meshing.quality import removed_slivers
-from tetdose.phantoms import _tetgrid
 
 DATA = Path(__file__).resolve().parents[3] / "shared" / "data"
 
@@ -133,8 +133,8 @@ def test_flat_tet_on_the_outer_surface_is_deleted() -> None:
     capped by the flat tetrahedron (p, q, r, s) of another region: two of its faces are outer
     boundary, two an interface, so no flip may touch it (a flip inside one region would)."""
     eps = 0.02
-    nodes = _tetgrid.grid_nodes(np.zeros(3), np.ones(3), (1, 1, 1))
-    tets = _tetgrid.grid_tets((1, 1, 1), "kuhn")
+    nodes = tetgrid.grid_nodes(np.zeros(3), np.ones(3), (1, 1, 1))
+    tets = tetgrid.grid_tets((1, 1, 1), "kuhn")
     top = np.flatnonzero(np.isclose(nodes[:, 2], 1.0))
     faces = {tuple(sorted(f)) for f in tets[:, FACE_VERTICES].reshape(-1, 3).tolist()}
     diag = next((a, b) for a, b in itertools.combinations(top.tolist(), 2)
@@ -162,8 +162,8 @@ def test_planted_slivers_in_two_regions_are_repaired() -> None:
     """A 6×6×6 Kuhn grid in two regions (x < 3 | x > 3) with vertices pushed to make slivers:
     every tet ends ≥ the threshold, interfaces and region volumes barely change."""
     cells = (6, 6, 6)
-    nodes = _tetgrid.grid_nodes(np.zeros(3), np.ones(3), cells)
-    tets = _tetgrid.grid_tets(cells, "kuhn")
+    nodes = tetgrid.grid_nodes(np.zeros(3), np.ones(3), cells)
+    tets = tetgrid.grid_tets(cells, "kuhn")
     region = np.where(nodes[tets].mean(axis=1)[:, 0] < 3.0, 1, 2).astype(np.int64)
     rng = np.random.default_rng(0)
     pushed = nodes.copy()

@@ -10,11 +10,12 @@ import math
 import numpy as np
 import pytest
 
+from tetdose import tetgrid
 from tetdose.errors import ImageError, TetdoseError
 from tetdose.image import Image, ImageGrid
 from tetdose.io import read_image, read_mesh
 from tetdose.mesh import TetMesh
-from tetdose.phantoms import MATERIALS, PHANTOMS, _tetgrid, make_phantom, mesh_labels, write_phantom
+from tetdose.phantoms import MATERIALS, PHANTOMS, make_phantom, mesh_labels, write_phantom
 from tetdose.phantoms._meshing import voxel_lookup
 
 
@@ -33,8 +34,8 @@ def _boundary_area(mesh: TetMesh) -> float:
 def test_grid_split_is_conforming_and_fills_the_box(scheme: str) -> None:
     # A non-conforming split leaves unmatched faces inside the box: extra boundary area.
     cells, edge = (3, 2, 4), np.array([1.5, 2.0, 0.7])
-    points = _tetgrid.grid_nodes(np.array([1.0, -2.0, 3.0]), edge, cells)
-    mesh = TetMesh(points, _tetgrid.grid_tets(cells, scheme))
+    points = tetgrid.grid_nodes(np.array([1.0, -2.0, 3.0]), edge, cells)
+    mesh = TetMesh(points, tetgrid.grid_tets(cells, scheme))
     size = edge * cells
     assert mesh.n_tets == (6 if scheme == "kuhn" else 5) * np.prod(cells)
     assert all(len(ids) == 0 for ids in mesh.bad_cells())

@@ -46,6 +46,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from tetdose import tetgrid
 from tetdose._optional import import_optional
 from tetdose._typing import FloatArray, IntArray
 from tetdose.errors import MeshError
@@ -56,7 +57,6 @@ from tetdose.meshing.checks import dihedral_angles_deg
 from tetdose.meshing.distance import DistanceField, signed_distance
 from tetdose.meshing.labels import checked_label_ids, default_sizes_mm
 from tetdose.meshing.quality import removed_slivers
-from tetdose.phantoms import _tetgrid
 
 #: Blur of the distance fields [voxels], against the voxel staircase.
 SMOOTHING_VOX = 0.75
@@ -201,8 +201,8 @@ def _background(mmgpy, labels: Image, fields: dict[int, DistanceField],  # noqa:
     hi_q = hi_idx * grid.spacing_mm + margin
     cells = tuple(int(n) for n in np.maximum(np.ceil((hi_q - lo_q) / h), 1))
     edge = (hi_q - lo_q) / np.array(cells)
-    nodes_q = _tetgrid.grid_nodes(lo_q, edge, cells)
-    tets = _tetgrid.grid_tets(cells, "kuhn")
+    nodes_q = tetgrid.grid_nodes(lo_q, edge, cells)
+    tets = tetgrid.grid_tets(cells, "kuhn")
     points = grid.origin_mm + nodes_q @ grid.direction.T
     if np.linalg.det(grid.direction) < 0:
         tets = tets[:, [0, 2, 1, 3]]

@@ -13,10 +13,11 @@ from typing import Any
 
 import numpy as np
 
+from tetdose import tetgrid
 from tetdose.errors import TetdoseError
 from tetdose.image import Image, ImageGrid
 from tetdose.mesh import TetMesh
-from tetdose.phantoms import _shapes, _tetgrid
+from tetdose.phantoms import _shapes
 from tetdose.phantoms._meshing import mesh_labels
 
 HU_MIN, HU_MAX = -1024, 3000
@@ -64,8 +65,8 @@ def cube(seed: int, *, n: int, spacing_mm: float, mean_hu: float, std_hu: float)
     hu = _rng(seed, STREAM_NOISE).normal(mean_hu, std_hu, grid.shape)
     ct = np.clip(np.rint(hu), HU_MIN, HU_MAX).astype(np.int16)
     lo, hi = grid.bounds_grid_frame()
-    nodes_q = _tetgrid.grid_nodes(lo, (hi - lo) / np.array([2, 2, 1]), (2, 2, 1))
-    mesh = TetMesh(grid.origin_mm + nodes_q, _tetgrid.grid_tets((2, 2, 1), "five"),
+    nodes_q = tetgrid.grid_nodes(lo, (hi - lo) / np.array([2, 2, 1]), (2, 2, 1))
+    mesh = TetMesh(grid.origin_mm + nodes_q, tetgrid.grid_tets((2, 2, 1), "five"),
                    np.ones(20, dtype=np.int64))
     labels = np.ones(grid.shape, dtype=np.uint8)
     return Image(ct, grid), Image(labels, grid), mesh, {1: "cube"}, {1: "soft_tissue"}

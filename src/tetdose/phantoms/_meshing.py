@@ -2,7 +2,7 @@
 
 Method: a structured grid of cubes of edge ``target_edge_mm`` (independent of the voxel size and
 shifted by a fraction of an edge, so its planes do not coincide with voxel planes) covers the
-labelled voxels; each cube is split into six Kuhn tetrahedra (conforming, see ``_tetgrid``). A
+labelled voxels; each cube is split into six Kuhn tetrahedra (conforming, see :mod:`tetdose.tetgrid`). A
 tetrahedron is kept when the label of the voxel containing its centroid is one of ``label_ids``,
 and that label becomes its region. Optionally, interface and boundary vertices are then
 snapped onto the label surfaces, every cell kept positively oriented. The grid is built in the
@@ -16,10 +16,11 @@ from collections.abc import Iterable
 
 import numpy as np
 
+from tetdose import tetgrid
 from tetdose.errors import ImageError, MeshError
 from tetdose.image import Image, ImageGrid
 from tetdose.mesh import TetMesh, compact_points, signed_volumes_mm3
-from tetdose.phantoms import _shapes, _tetgrid
+from tetdose.phantoms import _shapes
 
 #: Fraction of an edge by which the cube grid is shifted off the labelled region's voxel planes.
 GRID_SHIFT_FRAC = 0.37
@@ -73,9 +74,9 @@ def snap_to_labels(nodes_q: np.ndarray, tets: np.ndarray, region: np.ndarray, ar
     A vertex on the interface a | b (a > b) follows Newton steps δ = −(φ − ½) ∇φ / |∇φ|², φ the
     indicator of label a (of the meshed set on the outer boundary) blurred by
     ``SNAP_SIGMA_VOX``, each step at most ``SNAP_MAX_STEP_FRAC`` × edge; vertices on junctions
-    stay, and no cell shrinks below ``MIN_VOLUME_FRAC`` of its volume (``_tetgrid.guarded``).
+    stay, and no cell shrinks below ``MIN_VOLUME_FRAC`` of its volume (``tetgrid.guarded``).
     """
-    code = _tetgrid.surface_vertices(len(nodes_q), tets, region)
+    code = tetgrid.surface_vertices(len(nodes_q), tets, region)
     n_codes = int(region.max()) + 2
     vol0 = signed_volumes_mm3(nodes_q, tets)
     for c in np.unique(code[code >= 0]):
@@ -94,7 +95,7 @@ def snap_to_labels(nodes_q: np.ndarray, tets: np.ndarray, region: np.ndarray, ar
             step *= np.minimum(1.0, SNAP_MAX_STEP_FRAC * edge_mm / np.maximum(norm, 1e-300))
             new = nodes_q.copy()
             new[v] += step
-            nodes_q = _tetgrid.guarded(nodes_q, new, tets, vol0, MIN_VOLUME_FRAC)
+            nodes_q = tetgrid.guarded(nodes_q, new, tets, vol0, MIN_VOLUME_FRAC)
     return nodes_q
 
 
@@ -133,8 +134,8 @@ def mesh_labels(labels: Image, label_ids: Iterable[int] | None = None, target_ed
     start = lo - GRID_SHIFT_FRAC * h
     cells = tuple(int(n) for n in np.ceil((hi - start) / h))
     box = grid.bounds_grid_frame()
-    nodes_q = np.clip(_tetgrid.grid_nodes(start, np.full(3, h), cells), box[0], box[1])
-    tets = _tetgrid.grid_tets(cells, "kuhn")
+    nodes_q = np.clip(tetgrid.grid_nodes(start, np.full(3, h), cells), box[0], box[1])
+    tets = tetgrid.grid_tets(cells, "kuhn")
     vol = signed_volumes_mm3(nodes_q, tets)
     centroids = grid.origin_mm + nodes_q[tets].mean(axis=1) @ grid.direction.T
     region = voxel_lookup(grid, arr, centroids)
