@@ -189,6 +189,25 @@ def test_planted_slivers_in_two_regions_are_repaired() -> None:
     assert conformity(mesh)["coincident_vertices"] == 0
 
 
+def test_a_faulty_topological_round_is_undone(monkeypatch) -> None:  # noqa: ANN001
+    """If the flips ever returned a face shared by three tets (or an inverted tet), the pass
+    keeps the topology it had and goes on by relocation alone: the output stays manifold."""
+    from tetdose.meshing import flips, quality
+
+    points, tets = _ring(5, 1.5, 1)
+    region = np.ones(len(tets), dtype=np.int64)
+
+    def faulty(points_mm, tets, region, min_dihedral_deg, bad=None):  # noqa: ANN001, ANN202
+        return np.vstack([tets, tets[:1]]), np.r_[region, region[:1]], np.arange(len(tets) + 1)
+
+    monkeypatch.setattr(flips, "flipped", faulty)
+    assert not quality._valid_topology(points, np.vstack([tets, tets[:1]]))
+    assert quality._valid_topology(points, tets)
+    _, new, new_region = removed_slivers(points, tets, region, 40.0)
+    np.testing.assert_array_equal(new, tets)  # the ring's topology, not the faulty one
+    assert len(new_region) == len(tets)
+
+
 def test_same_input_same_output() -> None:
     points, tets = _ring(5, 1.5, 1)
     region = np.ones(len(tets), dtype=np.int64)

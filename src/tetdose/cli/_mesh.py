@@ -105,8 +105,8 @@ def run(args: argparse.Namespace) -> int:
             raise TetdoseError("--mesher gmsh takes one --size-mm for all labels")
         mesh = mesh_label_image(labels, ids, 6.0 if sizes is None else sizes,
                                 smoothing_sigma_vox=args.smooth or 0.0)
+    report = mesh_checks(mesh, labels)  # before writing: a mesh that fails them is not written
     path = write_mesh(args.output, mesh)
-    report = mesh_checks(mesh, labels)
     report["mesher"] = args.mesher
     report["names"] = {str(k): v for k, v in names.items()}
     json_path = path.with_name(path.name.rsplit(".", 1)[0] + ".checks.json")

@@ -33,7 +33,7 @@ from __future__ import annotations
 import numpy as np
 
 from tetdose._typing import FloatArray, IntArray
-from tetdose.mesh import FACE_VERTICES
+from tetdose.mesh import FACE_VERTICES, signed_volumes_mm3
 from tetdose.meshing._relocation_kernels import compass_search, min_dihedral_vol6
 
 #: Relocation rounds over the remaining bad tetrahedra.
@@ -85,10 +85,15 @@ def removed_slivers(points_mm: FloatArray, tets: IntArray, region: IntArray,
     region = np.asarray(region, dtype=np.int64)
     bad = np.flatnonzero(_min_dihedral(points_mm, tets) < min_dihedral_deg)
     points, bad = relocated(points_mm, tets, region, min_dihedral_deg, bad)
+    flips = True
     for bound in FIXED_MOVE_FRACTIONS:
         if bad.size == 0:
             break
-        tets, region, bad = flipped(points, tets, region, min_dihedral_deg, bad)
+        if flips:
+            t, r, b = flipped(points, tets, region, min_dihedral_deg, bad)
+            flips = _valid_topology(points, t)
+            if flips:  # else keep the round's input: relocation alone from here on
+                tets, region, bad = t, r, b
         points, bad = relocated(points, tets, region, min_dihedral_deg, bad,
                                 fixed_move_fraction=bound)
     if bad.size:  # last resort: the worst angle alone, even if neighbours drop below the aim
@@ -100,6 +105,17 @@ def removed_slivers(points_mm: FloatArray, tets: IntArray, region: IntArray,
         new_id = np.cumsum(used) - 1
         points, tets = points[used], new_id[tets]
     return points, tets, region
+
+
+def _valid_topology(points_mm: FloatArray, tets: IntArray) -> bool:
+    """Every face shared by at most two tetrahedra and every volume positive: the guard that
+    keeps a faulty topological round out of the mesh (it is then undone, not repaired)."""
+    if not np.all(signed_volumes_mm3(points_mm, tets) > 0):
+        return False
+    f = np.sort(tets[:, FACE_VERTICES].reshape(-1, 3), axis=1)
+    f = f[np.lexsort(f.T[::-1])]
+    same = np.all(f[1:] == f[:-1], axis=1)
+    return not np.any(same[1:] & same[:-1])  # three equal faces in a row
 
 
 def relocated(points_mm: FloatArray, tets: IntArray, region: IntArray, min_dihedral_deg: float,
