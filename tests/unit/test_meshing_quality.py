@@ -189,6 +189,24 @@ def test_planted_slivers_in_two_regions_are_repaired() -> None:
     assert conformity(mesh)["coincident_vertices"] == 0
 
 
+def test_a_flip_never_adds_an_edge_or_face_the_mesh_already_has() -> None:
+    """The 2-3 flip of (a,b,c,d) | (a,b,c,e) adds edge d-e: refused when a third tet already
+    holds d and e (the new tets would overlap it), allowed otherwise; the same for a face."""
+    from tetdose.meshing.flips import _fresh, _Mesh
+
+    pts = np.random.default_rng(0).normal(size=(8, 3))
+    a, b, c, d, e, x, y = range(7)
+    pair = [(a, b, c, d), (a, b, c, e)]
+    new = np.array([(d, e, a, b), (d, e, b, c), (d, e, c, a)])
+    assert _fresh(_Mesh(pts, np.array(pair), np.ones(2, np.int64)), [0, 1], new)
+    with_edge = np.array([*pair, (d, e, x, y)])
+    assert not _fresh(_Mesh(pts, with_edge, np.ones(3, np.int64)), [0, 1], new)
+    with_face = np.array([*pair, (d, e, a, 7)])
+    assert not _fresh(_Mesh(pts, with_face, np.ones(3, np.int64)), [0, 1], new)
+    unrelated = np.array([*pair, (d, x, y, 7)])
+    assert _fresh(_Mesh(pts, unrelated, np.ones(3, np.int64)), [0, 1], new)
+
+
 def test_a_faulty_topological_round_is_undone(monkeypatch) -> None:  # noqa: ANN001
     """If the flips ever returned a face shared by three tets (or an inverted tet), the pass
     keeps the topology it had and goes on by relocation alone: the output stays manifold."""

@@ -26,10 +26,13 @@ only when the smallest q of the new tetrahedra exceeds the smallest q of the one
    volumes by the sliver's (≪ 1 mm³), and only when the edge that becomes a surface edge has
    no other tetrahedron of X around it (no pinched surface).
    A flip reaching the threshold is preferred; reassignment comes next; otherwise the best
-   improving flip is taken.
+   improving flip is taken. A flip that would add an edge or a face the mesh already has
+   outside the tetrahedra it replaces is never taken (its retriangulation would overlap them).
 """
 
 from __future__ import annotations
+
+from itertools import combinations
 
 import numpy as np
 
@@ -158,6 +161,24 @@ class _Mesh:
         return other.pop() if other else -1
 
 
+def _fresh(mesh: _Mesh, old: list[int], new: IntArray) -> bool:
+    """Whether replacing the tets ``old`` by ``new`` adds no edge or face that the mesh already
+    has outside ``old`` (the precondition of every flip: else a face would get three tets)."""
+    rows = [mesh.tets[t].tolist() for t in old]
+    old_edges = {frozenset(e) for r in rows for e in combinations(r, 2)}
+    old_faces = {frozenset(f) for r in rows for f in combinations(r, 3)}
+    outside = set(old)
+    for tet in new.tolist():
+        for e in combinations(tet, 2):
+            if frozenset(e) not in old_edges and (mesh.star(e[0]) & mesh.star(e[1])) - outside:
+                return False
+        for f in combinations(tet, 3):
+            if frozenset(f) not in old_faces and (
+                    mesh.star(f[0]) & mesh.star(f[1]) & mesh.star(f[2])) - outside:
+                return False
+    return True
+
+
 def _edge_removal(mesh: _Mesh, a: int, b: int, ring: list[int]) -> tuple[float, IntArray]:
     """Best retriangulation of the ring of edge (a, b) (module doc, 1): (its smallest q, tets)."""
     n = len(ring)
@@ -258,7 +279,7 @@ def flipped(points_mm: FloatArray, tets: IntArray, region: IntArray, min_dihedra
                 continue
             q_old = float(mesh.quality(ring[1]).min())
             q_new, new = _edge_removal(mesh, row[i], row[j], ring[0])
-            if q_new > q_old + MIN_GAIN_DEG and q_new > best[0]:
+            if q_new > q_old + MIN_GAIN_DEG and q_new > best[0] and _fresh(mesh, ring[1], new):
                 best = (q_new, ring[1], new, int(mesh.region[t]))
         for f in range(4):
             u = mesh.neighbour(t, f)
@@ -270,7 +291,7 @@ def flipped(points_mm: FloatArray, tets: IntArray, region: IntArray, min_dihedra
             new = np.array([(d, e, a, b), (d, e, b, c), (d, e, c, a)], dtype=np.intp)
             q_new = float(tet_quality(points_mm, new).min())
             q_old = min(q_t, float(mesh.quality([u])[0]))
-            if q_new > q_old + MIN_GAIN_DEG and q_new > best[0]:
+            if q_new > q_old + MIN_GAIN_DEG and q_new > best[0] and _fresh(mesh, [t, u], new):
                 best = (q_new, [t, u], new, int(mesh.region[t]))
         if best[0] < min_dihedral_deg and t not in moved:
             x = _reassignment(mesh, t)
