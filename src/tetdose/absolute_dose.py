@@ -22,7 +22,6 @@ from tetdose.mu_calibration import (
 )
 from tetdose.prescription import (
     PER_PHOTON_UNIT,
-    Prescription,
     record,
     region_cells,
     region_label,
@@ -92,23 +91,19 @@ def calibration_scale(plan: Any, seed: int = 1) -> tuple[float, dict[str, Any]]:
     return scale, rec
 
 
-def scaled_result(result: DoseResult, scale: float, rx: Prescription) -> DoseResult:
-    """``result`` with its dose scaled by ``scale`` (normalization particles × scale)."""
-    return replace(result.with_extra(**record(rx, scale)), particles=result.particles * scale)
-
-
 def absolute_result(result: DoseResult, plan: Any, geometry: Any,  # noqa: ANN401
                      labels: Any = None) -> DoseResult:
     """One run prescribed by ``plan.prescription`` or calibrated by ``plan.calibration``
     (gy_per_mu, :mod:`tetdose.mu_calibration`); unchanged without either."""
     if getattr(plan, "calibration", None) is not None:
         scale, rec = calibration_scale(plan)
-        return replace(result.with_extra(**rec), particles=result.particles * scale)
+        return _scaled(result, scale, rec)
     rx = plan.prescription
     if rx is None:
         return result.with_extra(units={"dose": PER_PHOTON_UNIT})
     mask = region_cells(geometry, labels, region_label(rx.structure, plan.regions))
-    return scaled_result(result, scale_for(rx, result.dose_gy, result.mass_g, mask), rx)
+    scale = scale_for(rx, result.dose_gy, result.mass_g, mask)
+    return _scaled(result, scale, record(rx, scale))
 
 
 def absolute_dose4d(d4: Dose4D, plan: Any) -> Dose4D:  # noqa: ANN401
@@ -138,6 +133,7 @@ def absolute_dose4d(d4: Dose4D, plan: Any) -> Dose4D:  # noqa: ANN401
 
 
 def _scaled(result: DoseResult, scale: float, rec: dict[str, Any]) -> DoseResult:
+    """``result`` times ``scale`` (normalization particles × scale), ``rec`` in its record."""
     return replace(result.with_extra(**rec), particles=result.particles * scale)
 
 
