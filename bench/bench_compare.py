@@ -11,12 +11,12 @@ import time
 
 import numpy as np
 
-from tetdose.accumulate import energy_mass_transfer
 from tetdose.compare.gamma import gamma_index
-from tetdose.image import Image, ImageGrid
+from tetdose.core.image import Image, ImageGrid
+from tetdose.core.transfer import locate_points, mesh_dose_to_grid
+from tetdose.core.voxelize import voxelize
+from tetdose.dose.accumulate import energy_mass_transfer
 from tetdose.phantoms import make_phantom
-from tetdose.transfer import locate_points, mesh_dose_to_grid
-from tetdose.voxelize import voxelize
 
 
 def timed(label: str, fn, *args, **kw):  # noqa: ANN001, ANN201

@@ -13,8 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
+from tetdose.core.image import Image, ImageGrid
 from tetdose.dicom import write_ct_series, write_rt_dose
-from tetdose.image import Image, ImageGrid
 
 
 def synthetic(nx: int, ny: int, nz: int, lo: float, hi: float) -> Image:

@@ -23,18 +23,18 @@ from dataclasses import replace
 import numba
 import numpy as np
 
-from tetdose.accumulate import direct_dose_mapping, energy_mass_transfer
 from tetdose.compare.comparison import half_inside
 from tetdose.compare.dvh import image_dvh, mesh_dvh
 from tetdose.compare.gamma import gamma_index
-from tetdose.dose4d import run_dose4d
+from tetdose.core.overlap import compute_overlap
+from tetdose.core.transfer import grid_dose_to_mesh, mesh_dose_to_grid
+from tetdose.dose.accumulate import direct_dose_mapping, energy_mass_transfer
+from tetdose.dose.dose4d import run_dose4d
 from tetdose.mapping import map_density
-from tetdose.mapping.overlap import compute_overlap
 from tetdose.motion import BreathingModel, update_series
 from tetdose.motion.ct4d import phase_densities
 from tetdose.phantoms import make_phantom
 from tetdose.study import STRUCTURES, StudyConfig, _plan
-from tetdose.transfer import grid_dose_to_mesh, mesh_dose_to_grid
 from tetdose.transport import TransportSettings, simulate
 
 T0 = time.perf_counter()
@@ -135,7 +135,7 @@ def print_runs(clock: Clock, n: int) -> None:
 
 
 def dask_run(series, density, ct, plan, settings, args, clock: Clock, reference):  # noqa: ANN001, ANN201
-    from tetdose.transport.distributed import dask_client, simulate_distributed
+    from tetdose.transport.run.distributed import dask_client, simulate_distributed
 
     t = time.perf_counter()
     with dask_client(f"local:{args.workers}") as client:

@@ -26,12 +26,12 @@ import numba
 import numpy as np
 import SimpleITK as sitk
 
-from tetdose.calibration import HUCalibration
-from tetdose.image import Image
+from tetdose.core.calibration import HUCalibration
+from tetdose.core.image import Image
 from tetdose.mapping import map_density
 from tetdose.phantoms import make_phantom, mesh_labels
 from tetdose.transport import PhotonSource, Plan, TransportSettings, World, simulate
-from tetdose.transport.job import build_job
+from tetdose.transport.run.job import build_job
 
 MOVING = ("lung", "vessels", "tumour")
 

@@ -34,10 +34,10 @@ from pathlib import Path
 
 import numpy as np
 
-from tetdose.image import Image, ImageGrid
+from tetdose.core.image import Image, ImageGrid
+from tetdose.core.mesh import TetMesh
+from tetdose.core.overlap import compute_overlap
 from tetdose.mapping import map_density
-from tetdose.mapping.overlap import compute_overlap
-from tetdose.mesh import TetMesh
 from tetdose.phantoms import make_phantom, mesh_labels
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -163,7 +163,7 @@ def measure(fn) -> tuple[float, float, object]:  # noqa: ANN001
 
 def worker(task: str, case: str) -> None:
     """Run in a subprocess: warm up, then time ``task`` (map | voxelize) on the saved case."""
-    from tetdose.voxelize import voxelize
+    from tetdose.core.voxelize import voxelize
 
     data = np.load(case)
     grid = ImageGrid(data["origin"], data["spacing"], np.eye(3), tuple(data["size"]))

@@ -101,7 +101,7 @@ def abdomen_labels(seg, n: int | None) -> list[int]:  # noqa: ANN001
 
 
 def bench_mesh(cases: list[str]) -> None:
-    from tetdose.io import read_image
+    from tetdose.core.io import read_image
     from tetdose.meshing import conforming_mesh
     from tetdose.phantoms import ORGAN_REGIONS, THORAX_MOVING, make_phantom, organ_mesh
 

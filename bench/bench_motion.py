@@ -17,11 +17,11 @@ from pathlib import Path
 
 import numpy as np
 
-from tetdose.image import Image, ImageGrid
-from tetdose.mesh import TetMesh
+from tetdose.core.image import Image, ImageGrid
+from tetdose.core.mesh import TetMesh
+from tetdose.core.voxelize import voxelize
 from tetdose.motion import BreathingModel, update_series
 from tetdose.motion.ct4d import virtual_4dct, write_4dct
-from tetdose.voxelize import voxelize
 
 
 def kuhn_box(n: int, size_mm: float, centre_mm: np.ndarray) -> TetMesh:

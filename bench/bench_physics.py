@@ -16,13 +16,13 @@ import numpy as np
 from numba import njit
 
 from tetdose._random import next_uniform, seed_for
-from tetdose.transport._physics import (
+from tetdose.transport.physics._photon import (
     interact,
     lookup,
     sample_klein_nishina,
     transport_coefficients,
 )
-from tetdose.transport.xs import build_cross_sections
+from tetdose.transport.physics.xs import build_cross_sections
 
 
 @njit(cache=True)

@@ -37,8 +37,8 @@ from pathlib import Path
 import numpy as np
 import SimpleITK as sitk
 
-from tetdose.image import Image, ImageGrid
-from tetdose.io import read_image
+from tetdose.core.image import Image, ImageGrid
+from tetdose.core.io import read_image
 from tetdose.motion.register import BEFORE_SPEEDUP, RegistrationSettings, register, register_4dct
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data"

@@ -50,8 +50,8 @@ def main() -> None:
         print(f"{SHARED} not found: nothing to measure")
         return
     import tetdose.meshing.mmg as mmg
-    from tetdose.io import read_image
-    from tetdose.mesh import TetMesh
+    from tetdose.core.io import read_image
+    from tetdose.core.mesh import TetMesh
     from tetdose.meshing.flips import tet_quality
     from tetdose.meshing.quality import relocated, removed_slivers
 

@@ -27,8 +27,8 @@ import numba
 import numpy as np
 from numba import njit, prange
 
-from tetdose.image import Image, ImageGrid
-from tetdose.mesh import TetMesh
+from tetdose.core.image import Image, ImageGrid
+from tetdose.core.mesh import TetMesh
 from tetdose.phantoms import make_phantom
 from tetdose.transport import (
     PhotonSource,
@@ -38,7 +38,7 @@ from tetdose.transport import (
     morton_order,
     simulate,
 )
-from tetdose.transport._geometry_tet import enter_mesh, exit_face, next_tet, prefetch_neighbours
+from tetdose.transport.geometry._tet import enter_mesh, exit_face, next_tet, prefetch_neighbours
 
 PLAN = Plan((PhotonSource("parallel", [0, 0, -150.0], [0, 0, 1], energies_mev=[1.25],
                           field_mm=[100.0, 100.0]),))

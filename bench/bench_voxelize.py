@@ -18,7 +18,7 @@ import time
 import numpy as np
 from bench_mapping import large_case, run_scaling
 
-from tetdose.voxelize import voxelize
+from tetdose.core.voxelize import voxelize
 
 
 def main() -> None:

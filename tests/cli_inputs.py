@@ -13,10 +13,10 @@ import numpy as np
 import pydicom
 import SimpleITK as sitk
 
-from tetdose.calibration import HUCalibration
+from tetdose.core.calibration import HUCalibration
+from tetdose.core.image import Image
+from tetdose.core.io import write_image, write_mesh
 from tetdose.dicom.ct_series import write_ct_series
-from tetdose.image import Image
-from tetdose.io import write_image, write_mesh
 from tetdose.motion import PhaseSeries
 
 from helpers import box_mesh, density_image, grid_for

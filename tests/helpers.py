@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from tetdose.calibration import HUCalibration
-from tetdose.image import Image, ImageGrid
-from tetdose.mesh import TetMesh
+from tetdose.core.calibration import HUCalibration
+from tetdose.core.image import Image, ImageGrid
+from tetdose.core.mesh import TetMesh
 
 #: Kuhn (Freudenthal) split of the unit cube into 6 tetrahedra along the 0–7 diagonal; corners
 #: numbered by bits (x = 1, y = 2, z = 4). Consistent on a grid, hence conforming.

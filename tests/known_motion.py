@@ -12,7 +12,7 @@ from collections.abc import Callable
 import numpy as np
 import SimpleITK as sitk
 
-from tetdose.image import Image
+from tetdose.core.image import Image
 
 Field = Callable[[np.ndarray], np.ndarray]
 

@@ -3,8 +3,10 @@
 
 from tetdose._version import __version__
 
+from tetdose import _moved
+
 from tetdose import phantoms
-from tetdose.calibration import HUCalibration
+from tetdose.core.calibration import HUCalibration
 from tetdose.dicom import write_ct_series, write_ct_series_4d, write_rt_dose
 from tetdose.errors import (
     CalibrationError,
@@ -14,11 +16,11 @@ from tetdose.errors import (
     TetdoseError,
     TopologyMismatchError,
 )
-from tetdose.image import Image, ImageGrid
-from tetdose.io import read_ct, read_image, read_mesh, write_image, write_mesh
+from tetdose.core.image import Image, ImageGrid
+from tetdose.core.io import read_ct, read_image, read_mesh, write_image, write_mesh
 from tetdose.mapping import DensityMap, map_density
 from tetdose.mapping.metrics import evaluate
-from tetdose.mesh import TetMesh
+from tetdose.core.mesh import TetMesh
 from tetdose.motion import BreathingModel, PhaseSeries, update_series
 from tetdose.motion.ct4d_read import Phase4D, read_4dct
 from tetdose.study import StudyConfig, run_study
@@ -31,8 +33,8 @@ from tetdose.transport import (
     run_voxel_transport,
     simulate,
 )
-from tetdose.transport.world import World
-from tetdose.voxelize import voxelize
+from tetdose.transport.geometry.world import World
+from tetdose.core.voxelize import voxelize
 
 __all__ = [
     "BreathingModel",
@@ -75,3 +77,5 @@ __all__ = [
     "write_mesh",
     "write_rt_dose",
 ]
+
+_moved.install()  # old module paths import for one more release, with a DeprecationWarning

@@ -6,7 +6,7 @@ Called once per flight, interaction and source photon, that bookkeeping cost mor
 physics: 2.6 µs of a 4.3 µs history on a 48-tet box, and the shared counters bounce between the
 cores of a multi-threaded run. Kernels compiled without NRT borrow their arguments without
 counting; they must not allocate arrays (numba refuses to compile one that does), so the loops
-that allocate (e.g. the batch loops of :mod:`tetdose.transport._run`) keep NRT and call these.
+that allocate (e.g. the batch loops of :mod:`tetdose.transport.run._batches`) keep NRT and call these.
 """
 
 from numba import njit

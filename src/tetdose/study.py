@@ -24,7 +24,6 @@ from typing import Any
 import numpy as np
 
 from tetdose._atomic import atomic_write_dir
-from tetdose.calibration import HUCalibration
 from tetdose.compare.comparison import half_inside
 from tetdose.compare.dvh import image_dvh, mesh_dvh
 from tetdose.compare.gamma import gamma_index
@@ -39,25 +38,26 @@ from tetdose.compare.report import (
     render_png,
     write_report,
 )
+from tetdose.core.calibration import HUCalibration
+from tetdose.core.image import Image
+from tetdose.core.io import write_mesh
+from tetdose.core.mesh import TetMesh
+from tetdose.core.overlap import compute_overlap
+from tetdose.core.transfer import grid_dose_to_mesh, mesh_dose_to_grid
 from tetdose.dicom import write_rt_dose
-from tetdose.dose4d import run_dose4d, write_dose4d
-from tetdose.image import Image
-from tetdose.io import write_mesh
+from tetdose.dose.buildup import build_up_fraction, build_up_mask
+from tetdose.dose.dose4d import run_dose4d, write_dose4d
 from tetdose.mapping import map_density
 from tetdose.mapping.figures import plot_evaluation
 from tetdose.mapping.metrics import evaluate
-from tetdose.mapping.overlap import compute_overlap
-from tetdose.mesh import TetMesh
 from tetdose.motion import BreathingModel, update_series
 from tetdose.motion.ct4d import phase_densities, to_hu, write_4dct
 from tetdose.phantoms import Phantom, make_phantom, write_phantom
 from tetdose.phantoms import organ_mesh as phantoms_organ_mesh
-from tetdose.prescription import Prescription
-from tetdose.transfer import grid_dose_to_mesh, mesh_dose_to_grid
+from tetdose.plan.beams import ControlPoint, LinacBeam
+from tetdose.plan.prescription import Prescription
+from tetdose.plan.spectra import build_up_depth_mm
 from tetdose.transport import Plan, TransportSettings
-from tetdose.transport.beams import ControlPoint, LinacBeam
-from tetdose.transport.buildup import build_up_fraction, build_up_mask
-from tetdose.transport.spectra import build_up_depth_mm
 
 #: Structures reported in the DVH and mapping tables (phantom label names).
 STRUCTURES = ("tumour", "lung", "liver", "vessels", "bone")
@@ -284,7 +284,7 @@ class _Run:
 def _plan(target_mm: np.ndarray, c: StudyConfig, tumour_label: int) -> Plan:
     """6 MV linac fields (IEC gantry angles, HFS) at the tumour centroid, square jaws of
     ``field_mm`` at the isocentre, prescribed 2 Gy per fraction to the tumour's D95 (30
-    fractions): every dose of the study is then in Gy per fraction (tetdose.prescription)."""
+    fractions): every dose of the study is then in Gy per fraction (tetdose.plan.prescription)."""
     half = c.field_mm / 2.0
     beams = tuple(LinacBeam(f"G{g:g}", "6MV", target_mm,
                             (ControlPoint(g, 0.0, 0.0, (-half, half, -half, half)),))

@@ -16,11 +16,11 @@ import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from tetdose.image import Image, ImageGrid
+from tetdose.core.image import Image, ImageGrid
+from tetdose.core.mesh import TetMesh
+from tetdose.core.overlap import compute_overlap
+from tetdose.core.voxelize import voxelize
 from tetdose.mapping import map_density
-from tetdose.mapping.overlap import compute_overlap
-from tetdose.mesh import TetMesh
-from tetdose.voxelize import voxelize
 
 from helpers import MILLI, box_mesh
 

@@ -5,7 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tetdose.accumulate import (
+from tetdose.core.image import Image, ImageGrid
+from tetdose.core.mass import tet_mass_g
+from tetdose.core.mesh import TetMesh
+from tetdose.core.transfer import mesh_dose_to_grid
+from tetdose.core.voxelize import voxelize
+from tetdose.dose.accumulate import (
     accumulate_mesh_dose,
     accumulate_meshes,
     check_phase_totals,
@@ -15,12 +20,7 @@ from tetdose.accumulate import (
     phase_mass_spread,
 )
 from tetdose.errors import TopologyMismatchError
-from tetdose.image import Image, ImageGrid
-from tetdose.mass import tet_mass_g
-from tetdose.mesh import TetMesh
 from tetdose.phantoms import mesh_labels
-from tetdose.transfer import mesh_dose_to_grid
-from tetdose.voxelize import voxelize
 
 GRID = ImageGrid((0, 0, 0), (3.0, 3.0, 3.0), np.eye(3), (16, 14, 12))
 

@@ -148,8 +148,8 @@ def test_folder_inside_another_atomic_write_gets_no_marker(tmp_path):
 def test_dicom_series_folder_holds_only_dicom_and_is_recognised_as_ours(tmp_path):
     import numpy as np
 
+    from tetdose.core.image import Image, ImageGrid
     from tetdose.dicom.ct_series import write_ct_series
-    from tetdose.image import Image, ImageGrid
 
     ct = Image(np.zeros((2, 3, 4), np.int16), ImageGrid([0, 0, 0], [1, 1, 1], np.eye(3), (4, 3, 2)))
     first = write_ct_series(ct, tmp_path / "ct")

@@ -10,11 +10,8 @@ import pytest
 
 from tetdose._random import seed_for
 from tetdose.errors import PlanError
-from tetdose.transport import Plan, TransportSettings
-from tetdose.transport._source import sample_source
-from tetdose.transport.beams import MLC, aperture_rectangles, beam_axes
-from tetdose.transport.source import source_arrays
-from tetdose.transport.spectra import (
+from tetdose.plan.beams import MLC, aperture_rectangles, beam_axes
+from tetdose.plan.spectra import (
     CO60_LINES_MEV,
     DMAX_MM,
     NAMED_SPECTRA,
@@ -23,6 +20,9 @@ from tetdose.transport.spectra import (
     build_up_depth_mm,
     named_spectrum,
 )
+from tetdose.transport import Plan, TransportSettings
+from tetdose.transport.sources._sample import sample_source
+from tetdose.transport.sources.arrays import source_arrays
 
 
 def _beam_dir(gantry, coll=0.0, couch=0.0, pos="HFS"):
@@ -153,7 +153,7 @@ def test_isocentre_by_structure_name_needs_the_geometry():
     assert plan.unresolved == ["tumour"]
     with pytest.raises(PlanError, match="needs the geometry"):
         source_arrays(plan, TransportSettings(n_histories=10, n_batches=2))
-    from tetdose.image import Image, ImageGrid
+    from tetdose.core.image import Image, ImageGrid
 
     grid = ImageGrid(origin_mm=np.array([-10.0, 0.0, 5.0]), spacing_mm=np.array([2.0, 2.0, 2.0]),
                      direction=np.eye(3), size=(10, 10, 10))
@@ -184,8 +184,8 @@ def test_named_spectrum_in_simple_beams_and_linac_errors():
 
 
 def test_build_up_mask_is_the_skin_layer_of_depth_dmax():
-    from tetdose.image import Image, ImageGrid
-    from tetdose.transport.buildup import build_up_fraction, build_up_mask
+    from tetdose.core.image import Image, ImageGrid
+    from tetdose.dose.buildup import build_up_fraction, build_up_mask
 
     grid = ImageGrid(np.zeros(3), np.full(3, 2.0), np.eye(3), (40, 40, 40))
     rho = np.zeros(grid.shape)

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from tetdose.calibration import SCHNEIDER_2000, HUCalibration
+from tetdose.core.calibration import SCHNEIDER_2000, HUCalibration
 from tetdose.errors import CalibrationError
 
 from conftest import SHARED

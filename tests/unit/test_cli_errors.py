@@ -15,7 +15,7 @@ import pytest
 
 from cli_inputs import build
 from tetdose.cli import build_parser, main
-from tetdose.io import write_image, write_mesh
+from tetdose.core.io import write_image, write_mesh
 
 from helpers import box_mesh, density_image, grid_for
 

@@ -5,9 +5,9 @@ import json
 import numpy as np
 import pytest
 
-from tetdose.calibration import HUCalibration
 from tetdose.cli import main
-from tetdose.io import read_image, read_mesh, write_image, write_mesh
+from tetdose.core.calibration import HUCalibration
+from tetdose.core.io import read_image, read_mesh, write_image, write_mesh
 
 from helpers import box_mesh, density_image, grid_for
 

@@ -11,16 +11,16 @@ from scipy.special import erf
 from tetdose.compare.dvh import dvh, image_dvh, mesh_dvh
 from tetdose.compare.gamma import gamma_index
 from tetdose.compare.profiles import image_profile, mesh_profile
-from tetdose.image import Image, ImageGrid
-from tetdose.mass import tet_mass_g
-from tetdose.mesh import TetMesh
-from tetdose.phantoms import mesh_labels
-from tetdose.transfer import (
+from tetdose.core.image import Image, ImageGrid
+from tetdose.core.mass import tet_mass_g
+from tetdose.core.mesh import TetMesh
+from tetdose.core.transfer import (
     grid_dose_to_mesh,
     locate_points,
     mesh_dose_to_grid,
     mesh_mass_on_grid,
 )
+from tetdose.phantoms import mesh_labels
 
 
 def box_mesh(size=(12, 10, 8), box=(slice(2, 6), slice(2, 8), slice(2, 10)), spacing=4.0,
@@ -271,7 +271,7 @@ def test_image_profile_is_trilinear():
 
 @pytest.fixture(scope="module")
 def dose_files(tmp_path_factory):
-    from tetdose.io import write_image, write_mesh
+    from tetdose.core.io import write_image, write_mesh
 
     tmp = tmp_path_factory.mktemp("cmp")
     mesh = box_mesh()

@@ -11,11 +11,11 @@ from tetdose.compare.comparison import (
     labels_on,
     recorded_dose_unit,
 )
+from tetdose.core.image import Image, ImageGrid
+from tetdose.core.overlap import compute_overlap
+from tetdose.core.transfer import mesh_dose_to_grid
 from tetdose.errors import GeometryMismatchError, OptionError
-from tetdose.image import Image, ImageGrid
-from tetdose.mapping.overlap import compute_overlap
-from tetdose.prescription import PER_PHOTON_UNIT
-from tetdose.transfer import mesh_dose_to_grid
+from tetdose.plan.prescription import PER_PHOTON_UNIT
 
 from helpers import box_mesh, grid_for
 

@@ -9,10 +9,10 @@ import pydicom
 import pytest
 
 import tetdose
+from tetdose.core.image import Image, ImageGrid
+from tetdose.core.io import write_image
 from tetdose.dicom import write_ct_series_4d
 from tetdose.errors import ImageError
-from tetdose.image import Image, ImageGrid
-from tetdose.io import write_image
 from tetdose.motion.ct4d_read import find_phase, read_4dct
 
 GRID = ImageGrid([-10.0, 5.0, -30.0], [2.0, 1.5, 3.0], np.eye(3), (9, 7, 6))

@@ -15,9 +15,9 @@ import pytest
 import SimpleITK as sitk
 
 import tetdose.dicom.ct_series as ct_series
+from tetdose.core.image import Image, ImageGrid
 from tetdose.dicom import write_ct_series, write_ct_series_4d
 from tetdose.errors import DicomError
-from tetdose.image import Image, ImageGrid
 
 SHARED = Path(__file__).resolve().parents[2] / ".." / "shared"
 ABDOMEN = SHARED / "data" / "abdomen-dicom" / "series"
@@ -242,7 +242,7 @@ def test_failure_keeps_previous_series(tmp_path, monkeypatch):
 
 def test_bad_input_raises_dicom_error(tmp_path):
     image = make_ct()
-    with pytest.raises(DicomError, match="must be a tetdose.image.Image"):
+    with pytest.raises(DicomError, match="must be a tetdose.core.image.Image"):
         write_ct_series(image.array[0], tmp_path / "x")
     nan = image.with_array(np.where(image.array > 1500, np.nan, image.array))
     with pytest.raises(DicomError, match="NaN"):

@@ -10,13 +10,13 @@ import numpy as np
 import pytest
 
 from tetdose.cli import main
-from tetdose.dose4d import run_dose4d
+from tetdose.core.image import Image
+from tetdose.core.io import read_mesh, write_mesh
+from tetdose.dose.dose4d import run_dose4d
 from tetdose.errors import PlanError
-from tetdose.image import Image
-from tetdose.io import read_mesh, write_mesh
 from tetdose.motion import BreathingModel, update_series
 from tetdose.transport import PhotonSource, Plan, TransportSettings
-from tetdose.transport.distributed import dask_client, simulate_distributed
+from tetdose.transport.run.distributed import dask_client, simulate_distributed
 
 from helpers import box_mesh, grid_for
 

@@ -8,12 +8,12 @@ import pydicom
 import pytest
 
 from tetdose.compare.gamma import gamma_index
+from tetdose.core.image import CT_HU_RANGE, Image, check_ct_hu
+from tetdose.core.io import read_image
+from tetdose.core.overlap import compute_overlap
+from tetdose.core.voxelize import voxelize
 from tetdose.dicom.ct_series import write_ct_series
 from tetdose.errors import DensityError, DoseError, ImageError, OptionError
-from tetdose.image import CT_HU_RANGE, Image, check_ct_hu
-from tetdose.io import read_image
-from tetdose.mapping.overlap import compute_overlap
-from tetdose.voxelize import voxelize
 
 from helpers import box_mesh, grid_for
 

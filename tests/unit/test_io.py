@@ -6,10 +6,10 @@ import pytest
 import SimpleITK as sitk
 
 from tetdose._atomic import MARKER, atomic_write_dir, atomic_write_file
+from tetdose.core.image import Image, ImageGrid
+from tetdose.core.io import read_image, read_mesh, write_image, write_mesh
+from tetdose.core.mesh import TetMesh
 from tetdose.errors import ImageError, MeshError
-from tetdose.image import Image, ImageGrid
-from tetdose.io import read_image, read_mesh, write_image, write_mesh
-from tetdose.mesh import TetMesh
 
 from conftest import SHARED
 from helpers import box_mesh

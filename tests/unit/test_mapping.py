@@ -3,10 +3,12 @@
 import numpy as np
 import pytest
 
-from tetdose.image import Image
+from tetdose.core.image import Image
+from tetdose.core.mesh import PARENT_POINT
+from tetdose.core.overlap import compute_overlap
+from tetdose.core.voxelize import voxelize
 from tetdose.mapping import map_density
 from tetdose.mapping.metrics import evaluate
-from tetdose.mapping.overlap import compute_overlap
 from tetdose.mapping.solve import (
     bounded_with_total,
     lumped_mass_mm3,
@@ -14,8 +16,6 @@ from tetdose.mapping.solve import (
     p1_mass_matrix_mm3,
     project_l2,
 )
-from tetdose.mesh import PARENT_POINT
-from tetdose.voxelize import voxelize
 
 from helpers import MILLI, as_hu, box_mesh, density_image, grid_for
 

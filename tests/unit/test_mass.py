@@ -1,13 +1,13 @@
-"""tetdose.mass: tet masses (eq. 3) and overlap-pair masses (eq. 14–15) agree and conserve."""
+"""tetdose.core.mass: tet masses (eq. 3) and overlap-pair masses (eq. 14–15) agree and conserve."""
 
 import numpy as np
 import pytest
 
+from tetdose.core.image import ImageGrid
+from tetdose.core.mass import mass_g, pair_mass_g, tet_mass_g
+from tetdose.core.mesh import TetMesh
+from tetdose.core.overlap import compute_overlap
 from tetdose.errors import DensityError
-from tetdose.image import ImageGrid
-from tetdose.mapping.overlap import compute_overlap
-from tetdose.mass import mass_g, pair_mass_g, tet_mass_g
-from tetdose.mesh import TetMesh
 
 
 def _tet(scale: float = 1.0) -> TetMesh:

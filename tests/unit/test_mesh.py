@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
+from tetdose.core.mesh import FACE_VERTICES, TetMesh, compact_points, signed_volumes_mm3
 from tetdose.errors import MeshError, TopologyMismatchError
-from tetdose.mesh import FACE_VERTICES, TetMesh, compact_points, signed_volumes_mm3
 
 from helpers import box_mesh
 

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tetdose import tetgrid
+from tetdose.core import tetgrid
+from tetdose.core.mesh import TetMesh
 from tetdose.errors import MeshError
-from tetdose.mesh import TetMesh
 
 
 def _two_blocks(shared: bool) -> TetMesh:

@@ -10,9 +10,9 @@ import warnings
 import numpy as np
 import pytest
 
+from tetdose.core.image import Image, ImageGrid
+from tetdose.core.io import read_mesh, write_image
 from tetdose.errors import ImageError, MeshError, TetdoseError
-from tetdose.image import Image, ImageGrid
-from tetdose.io import read_mesh, write_image
 
 pytest.importorskip("gmsh", reason="gmsh not installed (extra tetdose[meshing])")
 pytest.importorskip("skimage", reason="scikit-image not installed (extra tetdose[meshing])")

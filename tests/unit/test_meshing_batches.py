@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tetdose.image import Image, ImageGrid
-from tetdose.mesh import signed_volumes_mm3
+from tetdose.core.image import Image, ImageGrid
+from tetdose.core.mesh import signed_volumes_mm3
 
 pytest.importorskip("mmgpy", reason="mmgpy not installed (extra tetdose[meshing])")
 
@@ -91,7 +91,7 @@ ABDOMEN_SEG = (Path(__file__).resolve().parents[2].parent / "shared" / "data" / 
 def test_every_label_of_a_real_segmentation_meshes_with_its_checks() -> None:
     if not ABDOMEN_SEG.exists():
         pytest.skip(f"{ABDOMEN_SEG} not found: the real label map lives in ../shared/data")
-    from tetdose.io import read_image
+    from tetdose.core.io import read_image
     from tetdose.meshing import conforming_mesh, mesh_checks
 
     seg = read_image(ABDOMEN_SEG)

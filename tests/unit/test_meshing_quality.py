@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tetdose import tetgrid
-from tetdose.mesh import FACE_VERTICES, TetMesh, signed_volumes_mm3
+from tetdose.core import tetgrid
+from tetdose.core.mesh import FACE_VERTICES, TetMesh, signed_volumes_mm3
 from tetdose.meshing._relocation_kernels import min_dihedral_vol6
 from tetdose.meshing.checks import conformity, dihedral_angles_deg
 from tetdose.meshing.flips import flipped, tet_quality
@@ -245,7 +245,7 @@ def test_real_masks_reach_ten_degrees(path: str, labels: list[int], size: float 
     pytest.importorskip("mmgpy", reason="mmgpy not installed (extra tetdose[meshing])")
     if not (DATA / path).is_file():
         pytest.skip(f"{DATA / path} not present (shared real data)")
-    from tetdose.io import read_image
+    from tetdose.core.io import read_image
     from tetdose.meshing import conforming_mesh, mesh_checks
 
     image = read_image(DATA / path)

@@ -9,9 +9,9 @@ import xml.etree.ElementTree as ET
 import numpy as np
 import pytest
 
+from tetdose.core.image import Image, ImageGrid
+from tetdose.core.mesh import TetMesh
 from tetdose.errors import GeometryMismatchError, MeshError, TetdoseError, TopologyMismatchError
-from tetdose.image import Image, ImageGrid
-from tetdose.mesh import TetMesh
 from tetdose.motion.breathing import BreathingModel
 from tetdose.motion.dvf import DisplacementField, read_dvf, warp_image, write_dvf
 from tetdose.motion.fem import (
@@ -292,9 +292,9 @@ def read_report(path) -> np.ndarray:
 
 
 def test_cli_deform_breathing_and_4dct(tmp_path):
-    from tetdose.calibration import HUCalibration
     from tetdose.cli import main
-    from tetdose.io import read_image, write_image, write_mesh
+    from tetdose.core.calibration import HUCalibration
+    from tetdose.core.io import read_image, write_image, write_mesh
 
     mesh = box_mesh(origin_mm=(10.0, 10.0, 10.0))
     write_mesh(tmp_path / "mapped.vtu", mesh)
@@ -345,7 +345,7 @@ def test_cli_deform_dvf_and_surfaces(tmp_path):
     import meshio
 
     from tetdose.cli import main
-    from tetdose.io import write_mesh
+    from tetdose.core.io import write_mesh
 
     mesh = box_mesh()
     write_mesh(tmp_path / "mapped.vtu", mesh)

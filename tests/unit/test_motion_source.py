@@ -9,9 +9,9 @@ import io
 import numpy as np
 import pytest
 
+from tetdose.core.image import ImageGrid
+from tetdose.core.io import write_mesh
 from tetdose.errors import DensityError, MeshError, OptionError
-from tetdose.image import ImageGrid
-from tetdose.io import write_mesh
 from tetdose.motion.breathing import BreathingModel
 from tetdose.motion.dvf import DisplacementField, write_dvf
 from tetdose.motion.source import (

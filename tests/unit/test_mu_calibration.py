@@ -5,11 +5,11 @@ at the reference point (within the statistics of the two Monte Carlo runs)."""
 import numpy as np
 import pytest
 
-from tetdose.absolute_dose import absolute_result, calibration_scale, reference_dose_per_photon
+from tetdose.dose.absolute import absolute_result, calibration_scale, reference_dose_per_photon
 from tetdose.errors import PlanError
-from tetdose.mu_calibration import MUCalibration, reference_phantom
+from tetdose.plan.beams import aperture_rectangles, fluence_weight
+from tetdose.plan.mu_calibration import MUCalibration, reference_phantom
 from tetdose.transport import Plan, TransportSettings, simulate
-from tetdose.transport.beams import aperture_rectangles, fluence_weight
 
 N_REF = 800_000
 
@@ -95,8 +95,8 @@ def test_cli_dose_record_says_gy_per_fraction_and_keeps_the_calibration(tmp_path
     import json
 
     from tetdose.cli import main
-    from tetdose.image import Image, ImageGrid
-    from tetdose.io import read_image, write_image
+    from tetdose.core.image import Image, ImageGrid
+    from tetdose.core.io import read_image, write_image
 
     grid = ImageGrid(np.array([-45.0, 5.0, -45.0]), np.full(3, 10.0), np.eye(3), (10, 10, 10))
     write_image(tmp_path / "ct.nrrd", Image(np.zeros(grid.shape, dtype=np.int16), grid))
@@ -118,9 +118,9 @@ def test_cli_dose_record_says_gy_per_fraction_and_keeps_the_calibration(tmp_path
 def test_dose4d_phases_and_accumulation_get_the_one_calibration_factor():
     """absolute_dose4d with [calibration]: every phase result and the accumulated dose are
     multiplied by gy_per_mu · ΣW / D_ref (the same factor as one run), units Gy per fraction."""
-    from tetdose.absolute_dose import absolute_dose4d
-    from tetdose.accumulate import AccumulatedDose
-    from tetdose.dose4d import Dose4D
+    from tetdose.dose.absolute import absolute_dose4d
+    from tetdose.dose.accumulate import AccumulatedDose
+    from tetdose.dose.dose4d import Dose4D
 
     rho, lab, _ = reference_phantom(100.0)
     plan = Plan.from_dict({"beam": [_linac(80.0)], "materials": {1: "water"},

@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
+from tetdose.core.image import ImageGrid
+from tetdose.core.mesh import TetMesh
+from tetdose.core.overlap import compute_overlap
 from tetdose.errors import GeometryMismatchError
-from tetdose.image import ImageGrid
-from tetdose.mapping.overlap import compute_overlap
-from tetdose.mesh import TetMesh
 
 from helpers import box_mesh, grid_for
 

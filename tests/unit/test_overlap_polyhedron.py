@@ -12,9 +12,9 @@
 import numpy as np
 import pytest
 
-from tetdose.mapping import _overlap_kernels as k
-from tetdose.mapping._tetsplit_kernels import overlap_tetsplit
-from tetdose.mapping.overlap import _bbox_counts
+from tetdose.core import _overlap_kernels as k
+from tetdose.core._tetsplit_kernels import overlap_tetsplit
+from tetdose.core.overlap import _bbox_counts
 
 CAP = 64
 UNIT = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])

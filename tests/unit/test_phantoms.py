@@ -10,11 +10,11 @@ import math
 import numpy as np
 import pytest
 
-from tetdose import tetgrid
+from tetdose.core import tetgrid
+from tetdose.core.image import Image, ImageGrid
+from tetdose.core.io import read_image, read_mesh
+from tetdose.core.mesh import TetMesh
 from tetdose.errors import ImageError, TetdoseError
-from tetdose.image import Image, ImageGrid
-from tetdose.io import read_image, read_mesh
-from tetdose.mesh import TetMesh
 from tetdose.phantoms import MATERIALS, PHANTOMS, make_phantom, mesh_labels, write_phantom
 from tetdose.phantoms._meshing import voxel_lookup
 

@@ -8,9 +8,9 @@ import pytest
 from numba import njit
 
 from tetdose._random import seed_for
-from tetdose.transport import _physics
-from tetdose.transport import xs as xs_module
-from tetdose.transport._physics import (
+from tetdose.transport.physics import _photon as _physics
+from tetdose.transport.physics import xs as xs_module
+from tetdose.transport.physics._photon import (
     COHERENT,
     ELECTRON_MASS_MEV,
     INCOHERENT,
@@ -18,7 +18,7 @@ from tetdose.transport._physics import (
     PHOTOELECTRIC,
     interact,
 )
-from tetdose.transport.xs import MATERIALS, build_cross_sections
+from tetdose.transport.physics.xs import MATERIALS, build_cross_sections
 
 NAMES = list(MATERIALS)
 THRESHOLD_MEV = 2.0 * ELECTRON_MASS_MEV

@@ -6,17 +6,17 @@ import json
 import numpy as np
 import pytest
 
-from tetdose.absolute_dose import absolute_result
-from tetdose.dicom.rt_plan import write_rt_plan
+from tetdose.core.image import Image, ImageGrid
+from tetdose.core.io import read_image, write_image
+from tetdose.dose.absolute import absolute_result
 from tetdose.errors import PlanError
-from tetdose.image import Image, ImageGrid
-from tetdose.io import read_image, write_image
-from tetdose.prescription import (
+from tetdose.plan.prescription import (
     PER_PHOTON_UNIT,
     Prescription,
     dose_metric,
     scale_for,
 )
+from tetdose.plan.rt_plan import write_rt_plan
 from tetdose.transport import Plan
 
 
@@ -68,7 +68,7 @@ def _dose(tmp, *extra):
 
 
 def test_cli_rtplan_with_prescription_gives_gy(water_ct, tmp_path):
-    from tetdose.transport.beams import ControlPoint, LinacBeam
+    from tetdose.plan.beams import ControlPoint, LinacBeam
 
     plan = Plan(treatment_beams=(
         LinacBeam("AP", "6MV", (0, 0, 0), (ControlPoint(0, 0, 0, (-30, 30, -30, 30)),)),
@@ -107,8 +107,8 @@ def test_absolute_result_needs_the_structure(water_ct):
 def test_structure_cells_and_centroid_on_a_mesh_and_a_world():
     from types import SimpleNamespace
 
-    from tetdose.mesh import TetMesh
-    from tetdose.prescription import region_cells, region_centroid_mm
+    from tetdose.core.mesh import TetMesh
+    from tetdose.plan.prescription import region_cells, region_centroid_mm
 
     pts = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [3, 3, 3]], dtype=float)
     mesh = TetMesh(pts, np.array([[0, 1, 2, 3], [1, 2, 3, 4]]), np.array([3, 3]))
@@ -129,8 +129,8 @@ def test_structure_cells_and_centroid_on_a_mesh_and_a_world():
 def test_dose_result_is_immutable_and_with_extra_returns_a_new_one():
     from dataclasses import replace
 
-    from tetdose.prescription import PER_PHOTON_UNIT
-    from tetdose.transport.result import COUNT_KEYS, DoseResult
+    from tetdose.plan.prescription import PER_PHOTON_UNIT
+    from tetdose.transport.history.result import COUNT_KEYS, DoseResult
 
     r = DoseResult(np.ones((2, 3)), np.array([5, 5]), np.ones(3), np.zeros((2, 5)),
                    np.zeros((2, len(COUNT_KEYS)), np.int64), 1.0, 0, "track_length", "mesh", 0.1, "0",

@@ -11,10 +11,10 @@ from scipy import ndimage
 
 from known_motion import breathing_field, warp
 from tetdose.cli import main
+from tetdose.core.image import Image, ImageGrid
+from tetdose.core.io import read_image, write_mesh
 from tetdose.dicom import write_ct_series_4d
 from tetdose.errors import ImageError
-from tetdose.image import Image, ImageGrid
-from tetdose.io import read_image, write_mesh
 from tetdose.motion.dvf import DisplacementField, read_dvf
 from tetdose.motion.phases import PhaseSeries
 from tetdose.motion.register import (
@@ -191,7 +191,7 @@ def test_folding_is_reported_as_a_one_line_error(capsys):
 
 
 def test_cli_register_with_a_mask_file(tmp_path):
-    from tetdose.io import write_image
+    from tetdose.core.io import write_image
 
     ct = thorax()
     same = ct.with_array(np.rint(ct.array).astype(np.int16))
@@ -316,7 +316,7 @@ def test_cli_crop_and_warm_start_options_reach_the_settings():
 def test_register_to_folder_writes_fields_and_report_that_percents_of_reads(tmp_path):
     """The library workflow behind ``tetdose register``: fields named by phase, the report
     listing them, and ``percents_of`` giving back the percents only for one such folder."""
-    from tetdose.io import write_image
+    from tetdose.core.io import write_image
     from tetdose.motion.dvf_folder import REPORT_NAME, percents_of, register_to_folder
 
     ct = thorax()

@@ -15,9 +15,9 @@ import pytest
 import SimpleITK as sitk
 
 import tetdose.dicom.rt_dose as rt_dose
+from tetdose.core.image import Image, ImageGrid
 from tetdose.dicom import rt_plan_path, write_ct_series, write_rt_dose
 from tetdose.errors import DicomError
-from tetdose.image import Image, ImageGrid
 
 ROT = np.array(
     [[0.6, -0.8, 0.0], [0.8, 0.6, 0.0], [0.0, 0.0, 1.0]]
@@ -157,7 +157,7 @@ def test_bad_input_raises_dicom_error(tmp_path):
         write_rt_dose(dose.with_array(dose.array - 1.0), tmp_path / "x.dcm", **kw)
     with pytest.raises(DicomError, match="NaN"):
         write_rt_dose(dose.with_array(dose.array * np.nan), tmp_path / "x.dcm", **kw)
-    with pytest.raises(DicomError, match="must be a tetdose.image.Image"):
+    with pytest.raises(DicomError, match="must be a tetdose.core.image.Image"):
         write_rt_dose(dose.array, tmp_path / "x.dcm", **kw)
     with pytest.raises(DicomError, match="single slice"):
         write_rt_dose(make_dose(size=(6, 5, 1)), tmp_path / "x.dcm", **kw)
@@ -194,7 +194,7 @@ def test_export_dose_of_an_unprescribed_dose_is_relative(tmp_path, ct_folder):
     import json
 
     from tetdose.cli import main
-    from tetdose.io import write_image
+    from tetdose.core.io import write_image
 
     grid = Image.from_sitk(sitk.ReadImage(
         sitk.ImageSeriesReader.GetGDCMSeriesFileNames(str(ct_folder)))).grid

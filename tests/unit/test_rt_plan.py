@@ -9,13 +9,13 @@ import pydicom
 import pytest
 
 from tetdose._random import seed_for
-from tetdose.dicom.rt_plan import write_rt_plan
 from tetdose.errors import PlanError
-from tetdose.prescription import Prescription
+from tetdose.plan.beams import MLC, ControlPoint, LinacBeam, aperture_rectangles, beam_axes
+from tetdose.plan.prescription import Prescription
+from tetdose.plan.rt_plan import write_rt_plan
 from tetdose.transport import Plan, TransportSettings
-from tetdose.transport._source import sample_source
-from tetdose.transport.beams import MLC, ControlPoint, LinacBeam, aperture_rectangles, beam_axes
-from tetdose.transport.source import source_arrays
+from tetdose.transport.sources._sample import sample_source
+from tetdose.transport.sources.arrays import source_arrays
 
 ISO = (12.5, -30.0, 40.0)
 BOUNDS = [-30.0, -10.0, 10.0, 30.0]

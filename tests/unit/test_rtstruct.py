@@ -17,7 +17,9 @@ import pytest
 from pydicom.dataset import Dataset
 from pydicom.uid import RTStructureSetStorage
 
-from tetdose.compare.rtstruct import (
+from tetdose.core.image import ImageGrid
+from tetdose.dicom.modules import ds_values, save, set_equipment, study_context
+from tetdose.dicom.rtstruct import (
     Structure,
     even_odd_fill,
     is_rtstruct,
@@ -25,9 +27,7 @@ from tetdose.compare.rtstruct import (
     structure_mask,
     structure_masks,
 )
-from tetdose.dicom._modules import ds_values, save, set_equipment, study_context
 from tetdose.errors import DicomError, GeometryMismatchError
-from tetdose.image import ImageGrid
 
 CENTRE = np.array([1.3, -2.1, 0.7])  # sphere/ring centre [mm], off the voxel lattice
 R_MM = 14.0
@@ -258,8 +258,8 @@ def test_synthetic_rtstruct_passes_dciodvfy(tmp_path):
 
 def test_cli_compare_with_rtstruct(tmp_path, capsys):
     from tetdose.cli import main
-    from tetdose.io import write_image, write_mesh
-    from tetdose.transfer import mesh_dose_to_grid
+    from tetdose.core.io import write_image, write_mesh
+    from tetdose.core.transfer import mesh_dose_to_grid
 
     from helpers import box_mesh
 

@@ -1,5 +1,5 @@
 """Tilted, sheared or skewed DICOM CT series: refused by default, resampled onto an orthogonal
-grid on request (tetdose.tilted). The series hold a linear HU field sampled at the true voxel
+grid on request (tetdose.core.tilted). The series hold a linear HU field sampled at the true voxel
 positions, so linear interpolation must give it back exactly inside the stack."""
 
 from __future__ import annotations
@@ -8,11 +8,11 @@ import numpy as np
 import pydicom
 import pytest
 
+from tetdose.core.image import Image, ImageGrid
+from tetdose.core.io import read_ct, read_image, tilted_policy
+from tetdose.core.tilted import OUTSIDE_HU
 from tetdose.dicom.ct_series import write_ct_series
 from tetdose.errors import ImageError
-from tetdose.image import Image, ImageGrid
-from tetdose.io import read_ct, read_image, tilted_policy
-from tetdose.tilted import OUTSIDE_HU
 
 SIZE = (10, 8, 6)  # columns, rows, slices
 SPACING = 2.0  # mm, in-plane and between slices

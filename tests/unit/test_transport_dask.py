@@ -7,10 +7,10 @@ import sys
 import numpy as np
 import pytest
 
+from tetdose.core.image import Image
 from tetdose.errors import PlanError, TetdoseError
-from tetdose.image import Image
 from tetdose.transport import PhotonSource, Plan, TransportSettings, World, simulate
-from tetdose.transport.distributed import _distributed, simulate_distributed
+from tetdose.transport.run.distributed import _distributed, simulate_distributed
 
 from helpers import box_mesh, grid_for
 

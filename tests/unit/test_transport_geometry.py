@@ -14,16 +14,16 @@ import numpy as np
 import pytest
 
 from tetdose._constants import MM_PER_CM
-from tetdose.image import Image, ImageGrid
-from tetdose.mesh import TetMesh
+from tetdose.core.image import Image, ImageGrid
+from tetdose.core.mesh import TetMesh
 from tetdose.transport import mesh_geometry, morton_order
-from tetdose.transport._geometry_tet import enter_mesh, exit_face
-from tetdose.transport._geometry_voxel import VoxelGeometry
-from tetdose.transport._geometry_world import start_cell
-from tetdose.transport._history import C_CROSSINGS, ESCAPES, N_COUNTS, flight_mesh, flight_voxel
-from tetdose.transport._physics import transport_coefficients
-from tetdose.transport.world import voxel_world
-from tetdose.transport.xs import build_cross_sections
+from tetdose.transport.geometry._tet import enter_mesh, exit_face
+from tetdose.transport.geometry._voxel import VoxelGeometry
+from tetdose.transport.geometry._world import start_cell
+from tetdose.transport.geometry.world import voxel_world
+from tetdose.transport.history._photon import C_CROSSINGS, ESCAPES, N_COUNTS, flight_mesh, flight_voxel
+from tetdose.transport.physics._photon import transport_coefficients
+from tetdose.transport.physics.xs import build_cross_sections
 
 import helpers
 
@@ -241,7 +241,7 @@ def test_prefetch_changes_no_value():
     leaves results untouched (it only hints the cache)."""
     from numba import njit
 
-    from tetdose.transport._prefetch import prefetch
+    from tetdose.transport.geometry._prefetch import prefetch
 
     @njit
     def prefetch_all_rows(a):
@@ -284,7 +284,7 @@ def test_kernels_refuse_to_allocate():
 def test_supporting_faces_of_a_box_and_of_a_u():
     """Every boundary face of a convex box supports the mesh; in a U the faces of the notch do
     not (a photon leaving through them can come back), the outer ones do."""
-    from tetdose.transport._geometry_tet import SUPPORTING
+    from tetdose.transport.geometry._tet import SUPPORTING
 
     box = box_mesh((3, 1, 2), (120.0, 40.0, 80.0), origin_mm=(-60.0, -20.0, 0.0))
     g = mesh_geometry(box, np.ones(box.n_points), np.zeros(box.n_tets, dtype=np.intp))
@@ -304,7 +304,7 @@ def test_supporting_faces_of_a_box_and_of_a_u():
 def test_every_voxel_a_boundary_triangle_crosses_lists_it():
     """Points sampled on every boundary triangle (a jittered mesh in a rotated grid) lie in
     voxels whose lists hold that triangle, and exactly the listed voxels are flagged."""
-    from tetdose.transport.world import World, world_arrays
+    from tetdose.transport.geometry.world import World, world_arrays
 
     c, s = np.cos(0.4), np.sin(0.4)
     rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])

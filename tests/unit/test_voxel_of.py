@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from tetdose.image import ImageGrid
+from tetdose.core.image import ImageGrid
 
 
 def test_face_points_go_to_the_upper_voxel_and_outer_faces_follow_the_rule():

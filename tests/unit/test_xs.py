@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from tetdose.errors import PlanError
-from tetdose.transport import _physics
-from tetdose.transport.xs import (
+from tetdose.transport.physics import _photon as _physics
+from tetdose.transport.physics.xs import (
     CLASSICAL_ELECTRON_RADIUS_CM,
     DENSITY_CLASS_MATERIALS,
     DENSITY_CLASS_UPPER_G_CM3,
@@ -155,7 +155,7 @@ def test_density_classes():
 
 
 def test_density_class_bounds_match_documented_schneider_hu():
-    from tetdose.calibration import HUCalibration
+    from tetdose.core.calibration import HUCalibration
 
     hu = HUCalibration.schneider2000().hu_of(np.array(DENSITY_CLASS_UPPER_G_CM3))
     np.testing.assert_allclose(hu, [-953, -176, -36, 83], atol=1.0)

@@ -19,7 +19,7 @@ Sources of the references:
 import numpy as np
 import pytest
 
-from tetdose.image import Image, ImageGrid
+from tetdose.core.image import Image, ImageGrid
 from tetdose.transport import Plan, TransportSettings, simulate
 
 pytestmark = pytest.mark.slow

@@ -12,11 +12,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tetdose.accumulate import accumulate_meshes, direct_dose_mapping, energy_mass_transfer
-from tetdose.image import Image, ImageGrid
+from tetdose.core.image import Image, ImageGrid
+from tetdose.core.transfer import mesh_dose_to_grid
+from tetdose.core.voxelize import voxelize
+from tetdose.dose.accumulate import accumulate_meshes, direct_dose_mapping, energy_mass_transfer
 from tetdose.phantoms import mesh_labels
-from tetdose.transfer import mesh_dose_to_grid
-from tetdose.voxelize import voxelize
 
 GRID = ImageGrid((0, 0, 0), (2.0, 2.0, 2.0), np.eye(3), (36, 34, 32))
 SHIFTS_MM = np.array([[0.0, 0.0, 0.0], [0.7, -1.1, 3.3], [1.3, -0.4, 6.1], [0.4, 0.9, 2.5]])

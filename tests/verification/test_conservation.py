@@ -14,8 +14,8 @@ import itertools
 import numpy as np
 import pytest
 
+from tetdose.core.mesh import TetMesh
 from tetdose.mapping.solve import lumped_mass_mm3
-from tetdose.mesh import TetMesh
 from tetdose.motion.breathing import BreathingModel
 from tetdose.motion.conserve import mesh_mass_g, update_density, update_series
 

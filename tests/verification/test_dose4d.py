@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 
 from tetdose.cli import main
-from tetdose.dose4d import run_dose4d, write_dose4d
-from tetdose.image import Image
-from tetdose.io import read_image, read_mesh, write_image, write_mesh
+from tetdose.core.image import Image
+from tetdose.core.io import read_image, read_mesh, write_image, write_mesh
+from tetdose.core.transfer import mesh_dose_to_grid
+from tetdose.dose.dose4d import run_dose4d, write_dose4d
 from tetdose.motion.phases import PhaseSeries
-from tetdose.transfer import mesh_dose_to_grid
 from tetdose.transport import PhotonSource, Plan, TransportSettings, simulate
 
 from helpers import box_mesh, grid_for

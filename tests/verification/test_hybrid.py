@@ -12,8 +12,8 @@ import math
 import numpy as np
 import pytest
 
-from tetdose.image import Image
-from tetdose.mesh import TetMesh
+from tetdose.core.image import Image
+from tetdose.core.mesh import TetMesh
 from tetdose.transport import PhotonSource, Plan, TransportSettings, World, simulate
 
 from helpers import box_mesh, density_image, grid_for
@@ -93,7 +93,7 @@ def _z_per_cell(e1, e2, n1, n2):
 def test_combined_dose_image_equals_voxel_dose(slab_runs):
     """Outside the mesh voxel by voxel; inside, tet by tet against the voxel run's energy moved
     onto the tets by exact overlap volumes (matched resolution: the mesh's tets are larger)."""
-    from tetdose.mapping.overlap import compute_overlap
+    from tetdose.core.overlap import compute_overlap
 
     mesh, ct, hybrid, voxel = slab_runs
     m = mesh.n_tets
@@ -294,9 +294,9 @@ def test_cli_dose_on_mesh_inside_ct_then_compare(tmp_path):
     import json
     import textwrap
 
-    from tetdose.calibration import HUCalibration
     from tetdose.cli import main
-    from tetdose.io import read_image, read_mesh, write_image, write_mesh
+    from tetdose.core.calibration import HUCalibration
+    from tetdose.core.io import read_image, read_mesh, write_image, write_mesh
 
     grid = grid_for((-40, -40, -40), (40, 40, 40), (5.0, 5.0, 5.0))
     write_image(tmp_path / "ct.nrrd", Image(np.zeros(grid.shape, np.int16), grid))
@@ -336,7 +336,7 @@ def test_beams_that_miss_the_world_are_refused_and_long_runs_announced(tmp_path)
     """A beam aimed away from the mesh and the CT is an error before the run; a run estimated
     above LONG_RUN_S is announced with its estimated duration, one above MAX_RUN_S refused."""
     from tetdose.errors import PlanError
-    from tetdose.transport import job
+    from tetdose.transport.run import job
 
     mesh, ct = _slab_world()
     away = Plan((PhotonSource("pencil", [0.0, 0.0, -40.0], [0, 0, -1], energies_mev=[1.0]),))

@@ -8,8 +8,8 @@ from numba import njit
 from scipy import stats
 
 from tetdose._random import seed_for
-from tetdose.transport import _physics
-from tetdose.transport._physics import (
+from tetdose.transport.physics import _photon as _physics
+from tetdose.transport.physics._photon import (
     ELECTRON_MASS_MEV,
     INCOHERENT,
     PAIR,
@@ -19,7 +19,7 @@ from tetdose.transport._physics import (
     rotate_direction,
     sample_klein_nishina,
 )
-from tetdose.transport.xs import build_cross_sections, mass_coefficients, transfer_coefficients
+from tetdose.transport.physics.xs import build_cross_sections, mass_coefficients, transfer_coefficients
 
 N_SAMPLES = 100_000
 SIGMAS = 4.0

@@ -26,11 +26,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tetdose.image import Image, ImageGrid
-from tetdose.io import read_image
+from tetdose.core.image import Image, ImageGrid
+from tetdose.core.io import read_image
+from tetdose.core.mesh import TetMesh
 from tetdose.mapping import DensityMap, map_density
 from tetdose.mapping.metrics import Evaluation, evaluate
-from tetdose.mesh import TetMesh
 from tetdose.phantoms import mesh_labels
 from tetdose.phantoms._meshing import voxel_lookup
 

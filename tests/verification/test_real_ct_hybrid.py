@@ -19,10 +19,10 @@ from test_real_ct import LUNG_CT, LUNG_MASK, _need, resample_labels
 
 from tetdose.cli import main
 from tetdose.compare.gamma import gamma_index
-from tetdose.image import Image
-from tetdose.io import read_image, read_mesh, write_image
-from tetdose.mapping.overlap import compute_overlap
-from tetdose.transfer import grid_dose_to_mesh, mesh_dose_to_grid
+from tetdose.core.image import Image
+from tetdose.core.io import read_image, read_mesh, write_image
+from tetdose.core.overlap import compute_overlap
+from tetdose.core.transfer import grid_dose_to_mesh, mesh_dose_to_grid
 
 pytestmark = pytest.mark.slow
 

@@ -23,8 +23,8 @@ import pytest
 import SimpleITK as sitk
 
 from known_motion import breathing_field, sliding_field, warp
-from tetdose.image import Image
-from tetdose.io import read_image
+from tetdose.core.image import Image
+from tetdose.core.io import read_image
 from tetdose.motion.register import register
 from tetdose.phantoms import mesh_labels
 

@@ -17,9 +17,9 @@ import pytest
 from scipy import stats
 
 from tetdose._random import next_uniform, seed_for
-from tetdose.image import Image, ImageGrid
-from tetdose.io import read_image, read_mesh, write_image, write_mesh
-from tetdose.mesh import TetMesh
+from tetdose.core.image import Image, ImageGrid
+from tetdose.core.io import read_image, read_mesh, write_image, write_mesh
+from tetdose.core.mesh import TetMesh
 from tetdose.transport import (
     PhotonSource,
     Plan,
@@ -27,13 +27,13 @@ from tetdose.transport import (
     mesh_geometry,
     simulate,
 )
-from tetdose.transport._geometry_tet import enter_mesh
-from tetdose.transport._geometry_voxel import VoxelGeometry
-from tetdose.transport._geometry_world import start_cell
-from tetdose.transport._history import ESCAPES, INTERACTS, N_COUNTS, flight_mesh, flight_voxel
-from tetdose.transport._physics import transport_coefficients
-from tetdose.transport.world import voxel_world
-from tetdose.transport.xs import build_cross_sections
+from tetdose.transport.geometry._tet import enter_mesh
+from tetdose.transport.geometry._voxel import VoxelGeometry
+from tetdose.transport.geometry._world import start_cell
+from tetdose.transport.geometry.world import voxel_world
+from tetdose.transport.history._photon import ESCAPES, INTERACTS, N_COUNTS, flight_mesh, flight_voxel
+from tetdose.transport.physics._photon import transport_coefficients
+from tetdose.transport.physics.xs import build_cross_sections
 
 REPO = Path(__file__).resolve().parents[2]
 WATER_MU_RHO_1MEV = 0.07072  # NIST XCOM, cm²/g (total with coherent; coherent is 0.05 % of it)

@@ -16,7 +16,7 @@ import math
 import numpy as np
 import pytest
 
-from tetdose.image import Image
+from tetdose.core.image import Image
 from tetdose.transport import PhotonSource, Plan, TransportSettings, simulate
 
 from helpers import box_mesh, grid_for

@@ -49,7 +49,7 @@ COMMANDS = {
 #: module may add it itself through cli._common.add_output_args).
 FOLDER_OUTPUTS = ("deform", "register", "4dct", "compare", "dose4d", "demo", "phantom")
 
-#: Commands that read a CT: they take --resample-tilted (see tetdose.io.tilted_policy).
+#: Commands that read a CT: they take --resample-tilted (see tetdose.core.io.tilted_policy).
 CT_READERS = ("map", "voxelize", "evaluate", "deform", "register", "4dct", "dose", "export-dose",
               "dose4d", "mesh")
 
@@ -95,7 +95,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except SystemExit as exc:  # --help, --version, or a usage error already printed
         return exc.code if isinstance(exc.code, int) else 2
     prefix = f"tetdose {args.command}"
-    from tetdose.io import tilted_policy
+    from tetdose.core.io import tilted_policy
 
     try:
         with _one_line_warnings(prefix), \

@@ -10,10 +10,10 @@ from pathlib import Path
 
 from tetdose._atomic import check_output_dir, check_output_file
 from tetdose._checks import check_density
-from tetdose.calibration import HUCalibration
+from tetdose.core.calibration import HUCalibration
+from tetdose.core.io import read_mesh
+from tetdose.core.mesh import TetMesh
 from tetdose.errors import MeshError
-from tetdose.io import read_mesh
-from tetdose.mesh import TetMesh
 
 
 def add_calibration_arg(parser: argparse.ArgumentParser) -> None:

@@ -3,7 +3,7 @@
 Both subcommands live here; ``add_args`` tells them apart by the subparser's name. Argument
 parsing and printing only: the comparison is :func:`tetdose.compare.comparison.compare_doses`
 (gamma where both doses exist: voxels at least half inside the mesh), the export
-:func:`tetdose.transfer.dose_on_grid` and :func:`tetdose.dicom.rt_dose.write_rt_dose`.
+:func:`tetdose.core.transfer.dose_on_grid` and :func:`tetdose.dicom.rt_dose.write_rt_dose`.
 """
 
 from __future__ import annotations
@@ -70,7 +70,7 @@ def _run_compare(args: argparse.Namespace) -> int:
         read_structure_masks,
         recorded_dose_unit,
     )
-    from tetdose.io import read_image
+    from tetdose.core.io import read_image
 
     check_output(args, folder=True)
     mesh_path = _find(args.mesh_dose, "accumulated", MESH_SUFFIXES, "mesh")
@@ -94,9 +94,9 @@ def _run_compare(args: argparse.Namespace) -> int:
 
 def _run_export(args: argparse.Namespace) -> int:
     from tetdose.compare.comparison import read_mesh_dose, recorded_dose_unit
+    from tetdose.core.io import read_image
+    from tetdose.core.transfer import dose_on_grid
     from tetdose.dicom.rt_dose import write_rt_dose
-    from tetdose.io import read_image
-    from tetdose.transfer import dose_on_grid
 
     check_output(args, suffixes=(".dcm",))
     grid = read_image(args.like).grid

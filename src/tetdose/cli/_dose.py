@@ -26,7 +26,7 @@ from tetdose.cli._common import (
     read_mapped_mesh,
 )
 from tetdose.errors import PlanError
-from tetdose.transport.model import ESTIMATORS
+from tetdose.transport.run.settings import ESTIMATORS
 
 MESH_SUFFIXES = (".vtu", ".vtk", ".xdmf", ".msh")
 
@@ -77,7 +77,7 @@ def dask_context(spec: str | None) -> Any:  # noqa: ANN401 - context manager
     """A context yielding a dask client for ``--dask``, or None without it."""
     if spec is None:
         return nullcontext(None)
-    from tetdose.transport.distributed import dask_client
+    from tetdose.transport.run.distributed import dask_client
 
     return dask_client(spec)
 
@@ -107,7 +107,7 @@ def _sibling(output: Path, suffix: str = "", ext: str | None = None) -> Path:
 
 def _write_images(result: Any, output: Path) -> list[str]:  # noqa: ANN401
     """The (combined) dose and its σ as float32 images: ``output`` and ``*_std``."""
-    from tetdose.io import write_image
+    from tetdose.core.io import write_image
 
     dose, dose_std = result.to_images()
     write_image(output, dose.with_array(dose.array.astype(np.float32)))
@@ -116,10 +116,10 @@ def _write_images(result: Any, output: Path) -> list[str]:  # noqa: ANN401
 
 
 def run(args: argparse.Namespace) -> int:
-    from tetdose.absolute_dose import absolute_result
-    from tetdose.io import read_ct, read_image, write_image, write_mesh
+    from tetdose.core.io import read_ct, read_image, write_image, write_mesh
+    from tetdose.dose.absolute import absolute_result
     from tetdose.transport import TransportSettings, World
-    from tetdose.transport.distributed import simulate_on
+    from tetdose.transport.run.distributed import simulate_on
 
     if args.mesh is None and args.ct is None:
         raise PlanError("give --mesh (a mapped mesh), --ct (a CT), or both (the mesh inside "

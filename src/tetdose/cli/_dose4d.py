@@ -7,13 +7,13 @@ from pathlib import Path
 
 from tetdose.cli._common import add_calibration_arg, calibration_from, check_output, int_at_least
 from tetdose.cli._dose import add_dask_arg, add_run_args, dask_context
-from tetdose.dose4d import run_dose4d, write_dose4d
+from tetdose.core.io import read_ct
+from tetdose.dose.dose4d import run_dose4d, write_dose4d
 from tetdose.errors import OptionError
-from tetdose.io import read_ct
 from tetdose.motion.ct4d_read import find_phase, read_4dct
 from tetdose.motion.dvf import read_dvf
 from tetdose.motion.phases import PhaseSeries
-from tetdose.prescription import PER_PHOTON_UNIT
+from tetdose.plan.prescription import PER_PHOTON_UNIT
 from tetdose.transport import Plan, TransportSettings
 
 

@@ -17,8 +17,8 @@ import numpy as np
 
 from tetdose._atomic import atomic_write_file
 from tetdose.cli._common import add_calibration_arg, calibration_from, read_mapped_mesh
+from tetdose.core.io import read_image, write_image
 from tetdose.errors import ImageError, TetdoseError
-from tetdose.io import read_image, write_image
 from tetdose.mapping.figures import plot_evaluation
 from tetdose.mapping.metrics import evaluate
 

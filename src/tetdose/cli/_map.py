@@ -12,9 +12,9 @@ from tetdose.cli._common import (
     check_output,
     int_at_least,
 )
-from tetdose.io import MESH_SUFFIXES, read_ct, read_mesh, write_mesh
+from tetdose.core.io import MESH_SUFFIXES, read_ct, read_mesh, write_mesh
+from tetdose.core.overlap import METHODS
 from tetdose.mapping import SOLVERS, map_density
-from tetdose.mapping.overlap import METHODS
 
 
 def add_args(p: argparse.ArgumentParser) -> None:

@@ -57,7 +57,7 @@ def parse_sizes(text: str | None) -> float | dict[int, float] | None:
 
 
 def _inputs(args: argparse.Namespace):  # noqa: ANN202 - (Image, list[int] | None, names)
-    from tetdose.io import read_image
+    from tetdose.core.io import read_image
     from tetdose.meshing.inputs import labels_from_structures, with_body
 
     if (args.labels is None) == (args.structures is None):
@@ -91,7 +91,7 @@ def _inputs(args: argparse.Namespace):  # noqa: ANN202 - (Image, list[int] | Non
 def run(args: argparse.Namespace) -> int:
     from tetdose._atomic import atomic_write_file
     from tetdose.cli._common import check_output
-    from tetdose.io import MESH_SUFFIXES, write_mesh
+    from tetdose.core.io import MESH_SUFFIXES, write_mesh
     from tetdose.meshing import conforming_mesh, mesh_checks, mesh_label_image
 
     check_output(args, suffixes=MESH_SUFFIXES)

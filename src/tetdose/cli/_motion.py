@@ -16,7 +16,7 @@ from tetdose._atomic import atomic_write_dir
 from tetdose.cli._common import density_or_word, float_in, int_at_least, read_mapped_mesh
 
 if TYPE_CHECKING:
-    from tetdose.mesh import TetMesh
+    from tetdose.core.mesh import TetMesh
     from tetdose.motion import PhaseSeries
 
 
@@ -85,7 +85,7 @@ def _add_4dct_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--dvf", nargs="+", type=Path, metavar="IMAGE",
                    help="one DVF per phase: also warp the CT outside the mesh")
     p.add_argument("--partial", choices=("mass", "extrapolate"), default="mass",
-                   help="voxels partly inside the mesh (see tetdose.voxelize)")
+                   help="voxels partly inside the mesh (see tetdose.core.voxelize)")
 
 
 def _motion_series(args: argparse.Namespace, reference: TetMesh, out_dir: Path) -> PhaseSeries:
@@ -133,7 +133,7 @@ def _run_deform(args: argparse.Namespace) -> int:
 
 def _run_4dct(args: argparse.Namespace) -> int:
     from tetdose.cli._common import check_output
-    from tetdose.io import read_ct, read_image
+    from tetdose.core.io import read_ct, read_image
     from tetdose.motion import PhaseSeries, read_dvf
     from tetdose.motion.ct4d import virtual_4dct, write_4dct
 

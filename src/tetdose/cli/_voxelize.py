@@ -14,9 +14,9 @@ from tetdose.cli._common import (
     density_or_word,
     read_mapped_mesh,
 )
-from tetdose.image import Image, check_ct_hu
-from tetdose.io import IMAGE_SUFFIXES, read_image, write_image
-from tetdose.voxelize import PARTIAL_MODES, voxelize
+from tetdose.core.image import Image, check_ct_hu
+from tetdose.core.io import IMAGE_SUFFIXES, read_image, write_image
+from tetdose.core.voxelize import PARTIAL_MODES, voxelize
 
 
 def add_args(p: argparse.ArgumentParser) -> None:

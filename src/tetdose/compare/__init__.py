@@ -1,8 +1,8 @@
 """Dose comparison: gamma index, DVHs, profiles, reports, and the mesh-vs-voxel workflow.
 
 Mesh ↔ grid transfer and point location, which comparison, accumulation and the 4D dose all
-build on, live in :mod:`tetdose.transfer`; accumulation over breathing phases in
-:mod:`tetdose.accumulate`.
+build on, live in :mod:`tetdose.core.transfer`; accumulation over breathing phases in
+:mod:`tetdose.dose.accumulate`.
 """
 
 from tetdose.compare.dvh import DVH, dvh, image_dvh, mesh_dvh

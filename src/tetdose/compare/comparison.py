@@ -1,6 +1,6 @@
 """A mesh dose compared with a voxel dose: the workflow of ``tetdose compare`` and the demo study.
 
-The mesh dose is put on the voxel dose's grid (:func:`tetdose.transfer.mesh_dose_to_grid`:
+The mesh dose is put on the voxel dose's grid (:func:`tetdose.core.transfer.mesh_dose_to_grid`:
 energy-conserving, mass-weighted with the mesh's point_data ``density`` when present). The mesh
 dose exists only inside the mesh (an organ mesh in a hybrid run covers a few organs), so gamma
 is evaluated where both doses are defined — the voxels at least half inside the mesh
@@ -27,12 +27,12 @@ from tetdose.compare import report
 from tetdose.compare.dvh import dvh, image_dvh
 from tetdose.compare.gamma import gamma_index
 from tetdose.compare.profiles import image_profile, mesh_profile
+from tetdose.core.image import Image, ImageGrid
+from tetdose.core.mesh import TetMesh
+from tetdose.core.overlap import Overlap, compute_overlap
+from tetdose.core.transfer import mesh_dose_to_grid, per_tet_dose
 from tetdose.errors import GeometryMismatchError, MeshError, OptionError
-from tetdose.image import Image, ImageGrid
-from tetdose.mapping.overlap import Overlap, compute_overlap
-from tetdose.mesh import TetMesh
-from tetdose.prescription import PER_PHOTON_UNIT
-from tetdose.transfer import mesh_dose_to_grid, per_tet_dose
+from tetdose.plan.prescription import PER_PHOTON_UNIT
 
 #: Gamma criteria of the comparison: (dose %, DTA mm, local).
 CRITERIA = ((3.0, 3.0, False), (2.0, 2.0, False), (3.0, 3.0, True))
@@ -74,8 +74,8 @@ def labels_on(labels: Image, grid: ImageGrid) -> IntArray:
 
 def read_structure_masks(path: str | Path, grid: ImageGrid) -> dict[str, BoolArray]:
     """Name → voxel mask on ``grid``: RTSTRUCT ROIs by name, or ``label N`` per image label."""
-    from tetdose.compare.rtstruct import is_rtstruct, read_rtstruct, structure_masks
-    from tetdose.io import read_image
+    from tetdose.core.io import read_image
+    from tetdose.dicom.rtstruct import is_rtstruct, read_rtstruct, structure_masks
 
     if is_rtstruct(path):
         return structure_masks(read_rtstruct(path), grid, skip_unusable=True)
@@ -85,7 +85,7 @@ def read_structure_masks(path: str | Path, grid: ImageGrid) -> dict[str, BoolArr
 
 def read_mesh_dose(path: str | Path) -> tuple[TetMesh, FloatArray]:
     """A dose VTU (cell_data ``dose``) → (mesh, per-tet dose)."""
-    from tetdose.io import read_mesh
+    from tetdose.core.io import read_mesh
 
     mesh = read_mesh(path)
     if "dose" not in mesh.cell_data:
@@ -96,7 +96,7 @@ def read_mesh_dose(path: str | Path) -> tuple[TetMesh, FloatArray]:
 def recorded_dose_unit(dose_path: str | Path) -> str:
     """The dose unit a run record beside ``dose_path`` states (``<stem>.json`` of ``tetdose
     dose``, ``summary.json`` of ``tetdose dose4d``): "Gy per fraction" when prescribed, else
-    (no prescription, or no record) :data:`~tetdose.prescription.PER_PHOTON_UNIT`."""
+    (no prescription, or no record) :data:`~tetdose.plan.prescription.PER_PHOTON_UNIT`."""
     path = Path(dose_path)
     for record in (path.with_name(path.name.split(".")[0] + ".json"),
                    path.with_name("summary.json")):

@@ -21,11 +21,11 @@ import numpy as np
 
 from tetdose._constants import MM3_PER_CM3
 from tetdose._typing import BoolArray, FloatArray
+from tetdose.core.image import Image
+from tetdose.core.mass import tet_mass_g
+from tetdose.core.mesh import TetMesh
+from tetdose.core.transfer import per_tet_dose, vertex_density
 from tetdose.errors import DoseError, OptionError
-from tetdose.image import Image
-from tetdose.mass import tet_mass_g
-from tetdose.mesh import TetMesh
-from tetdose.transfer import per_tet_dose, vertex_density
 
 WEIGHTS = ("volume", "mass")
 

@@ -30,8 +30,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from tetdose._typing import BoolArray, FloatArray, IntArray
+from tetdose.core.image import Image
 from tetdose.errors import DoseError, OptionError
-from tetdose.image import Image
 
 #: Reference points handled per chunk (bounds the memory of the search).
 POINT_CHUNK = 1_000_000

@@ -13,10 +13,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from tetdose._typing import FloatArray
+from tetdose.core.image import Image
+from tetdose.core.mesh import TetMesh
+from tetdose.core.transfer import interpolate_at_points, locate_points, per_tet_dose
 from tetdose.errors import OptionError
-from tetdose.image import Image
-from tetdose.mesh import TetMesh
-from tetdose.transfer import interpolate_at_points, locate_points, per_tet_dose
 
 
 @dataclass(frozen=True, eq=False)

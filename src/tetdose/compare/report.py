@@ -24,8 +24,8 @@ from tetdose._atomic import atomic_write_dir
 from tetdose.compare.dvh import DVH
 from tetdose.compare.gamma import GammaResult
 from tetdose.compare.profiles import Profile
-from tetdose.image import Image
-from tetdose.prescription import PER_PHOTON_UNIT
+from tetdose.core.image import Image
+from tetdose.plan.prescription import PER_PHOTON_UNIT
 
 
 @dataclass
@@ -102,7 +102,7 @@ def dvh_figure(curves: Mapping[str, Sequence[DVH]], *, unit: str = PER_PHOTON_UN
 
     ``unit``: "Gy" for prescribed doses; ``build_up_mm``: the beams' build-up depth d_max, noted
     in the caption (cells shallower than it report kerma, which exceeds the dose there), and
-    ``build_up_fraction`` per structure (:mod:`tetdose.transport.buildup`) in the legend."""
+    ``build_up_fraction`` per structure (:mod:`tetdose.dose.buildup`) in the legend."""
     build_up_fraction = build_up_fraction or {}
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(7, 4.5))

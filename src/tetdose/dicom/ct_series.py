@@ -27,7 +27,8 @@ from pydicom.uid import CTImageStorage
 from tqdm import tqdm
 
 from tetdose._atomic import atomic_write_dir
-from tetdose.dicom._modules import (
+from tetdose.core.image import Image, ImageGrid
+from tetdose.dicom.modules import (
     StudyContext,
     ds_values,
     save,
@@ -38,7 +39,6 @@ from tetdose.dicom._modules import (
 )
 from tetdose.dicom.uid import DEFAULT_PREFIX, derive_uid, image_digest
 from tetdose.errors import DicomError
-from tetdose.image import Image, ImageGrid
 
 _INT16 = np.iinfo(np.int16)
 #: File names of slices and phase folders, as written here.
@@ -75,7 +75,7 @@ def hu_to_stored(hu: np.ndarray) -> tuple[np.ndarray, int]:
 
 def _check_image(image: object, what: str) -> Image:
     if not isinstance(image, Image):
-        raise DicomError(f"{what} must be a tetdose.image.Image, got {type(image).__name__}")
+        raise DicomError(f"{what} must be a tetdose.core.image.Image, got {type(image).__name__}")
     if image.array.ndim != 3:
         raise DicomError(f"{what} must be 3-D, got an array of shape {image.array.shape}")
     if not np.issubdtype(image.array.dtype, np.number) or np.iscomplexobj(image.array):

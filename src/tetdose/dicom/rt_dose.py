@@ -18,7 +18,7 @@ plan's SOP Instance UID, a minimal RT Plan (A.20: RT General Plan with RTPlanGeo
 TREATMENT_DEVICE and approval UNAPPROVED, no beams) is written beside the dose
 (``<name>.rtplan.dcm``) and referenced, so the pair is self-consistent in any archive. Given the
 plan's linac beams, that RT Plan holds them (beams, control points, fraction scheme:
-:mod:`tetdose.dicom.rt_plan`).
+:mod:`tetdose.plan.rt_plan`).
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ from __future__ import annotations
 import warnings
 from contextlib import ExitStack
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 from pydicom.dataset import Dataset
@@ -35,7 +35,8 @@ from pydicom.uid import RTDoseStorage, RTPlanStorage
 from pydicom.valuerep import format_number_as_ds
 
 from tetdose._atomic import atomic_write_file
-from tetdose.dicom._modules import (
+from tetdose.core.image import Image, ImageGrid
+from tetdose.dicom.modules import (
     StudyContext,
     ds_values,
     rt_general_plan,
@@ -47,10 +48,15 @@ from tetdose.dicom._modules import (
 )
 from tetdose.dicom.uid import DEFAULT_PREFIX, derive_uid, image_digest
 from tetdose.errors import DicomError
-from tetdose.image import Image, ImageGrid
 
-if TYPE_CHECKING:
-    from tetdose.transport.model import Plan
+
+class Plan(Protocol):
+    """What an RT Dose needs of a plan (:class:`tetdose.plan.model.Plan` is one): its linac beams
+    and their RT Plan dataset (the DICOM layer sits below the plan, so it asks, not imports)."""
+
+    treatment_beams: tuple[object, ...]
+
+    def rt_plan_dataset(self, ctx: StudyContext, plan_uid: str, number: int) -> Dataset: ...
 
 #: Summation types written; others need fraction/beam references tetdose does not have.
 SUMMATION_TYPES = ("PLAN",)
@@ -88,14 +94,12 @@ def write_rt_dose(
     description say per source photon; "Gy" and "Gy per fraction" with DoseUnits GY.
 
     ``plan``: with linac beams, the RT Plan written beside the dose holds them
-    (:mod:`tetdose.dicom.rt_plan`) instead of the beamless placeholder.
+    (:mod:`tetdose.plan.rt_plan`) instead of the beamless placeholder.
 
     ``reference_ct``: the CT series folder whose patient, study and Frame of Reference UID the
     dose shares (or pass ``frame_of_reference_uid``/``study_instance_uid``). Without
     ``referenced_rt_plan_uid`` a minimal RT Plan is also written, at :func:`rt_plan_path`.
     """
-    from tetdose.dicom.rt_plan import plan_dataset
-
     dose_gy = _checked_dose(dose_gy)
     if summation_type not in SUMMATION_TYPES:
         raise DicomError(f"DoseSummationType {summation_type!r} is not supported; use 'PLAN'")
@@ -131,7 +135,7 @@ def write_rt_dose(
             plan_uid = derive_uid(series_uid, "plan", prefix=uid_prefix)
             plan_tmp = stack.enter_context(atomic_write_file(rt_plan_path(path)))
             if plan is not None and plan.treatment_beams:
-                save(plan_dataset(plan, ctx, plan_uid, series_number + 1), plan_tmp,
+                save(plan.rt_plan_dataset(ctx, plan_uid, series_number + 1), plan_tmp,
                      RTPlanStorage, plan_uid)
             else:
                 _write_plan_stub(plan_tmp, ctx, plan_uid, series_number + 1)
@@ -150,7 +154,7 @@ def write_rt_dose(
 
 def _checked_dose(dose: object) -> Image:
     if not isinstance(dose, Image):
-        raise DicomError(f"dose_gy must be a tetdose.image.Image, got {type(dose).__name__}")
+        raise DicomError(f"dose_gy must be a tetdose.core.image.Image, got {type(dose).__name__}")
     arr = dose.array
     if arr.ndim != 3 or not np.issubdtype(arr.dtype, np.number) or np.iscomplexobj(arr):
         raise DicomError(f"dose_gy must be a real 3-D image, got {arr.dtype} {arr.shape}")

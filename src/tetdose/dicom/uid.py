@@ -15,7 +15,7 @@ import hashlib
 import numpy as np
 from pydicom.uid import UID, generate_uid
 
-from tetdose.image import Image
+from tetdose.core.image import Image
 
 #: Default root: pydicom's registered prefix, under which derived UIDs are unique.
 DEFAULT_PREFIX = "1.2.826.0.1.3680043.8.498."

@@ -14,13 +14,13 @@ from scipy.ndimage import maximum_filter, minimum_filter
 
 from tetdose._constants import MM3_PER_CM3
 from tetdose._typing import FloatArray
-from tetdose.calibration import HUCalibration
+from tetdose.core.calibration import HUCalibration
+from tetdose.core.image import Image, ImageGrid, check_ct_hu
+from tetdose.core.mass import tet_mass_g
+from tetdose.core.mesh import TetMesh
+from tetdose.core.overlap import Overlap, compute_overlap, warn_if_uncovered
 from tetdose.errors import OptionError
-from tetdose.image import Image, ImageGrid, check_ct_hu
-from tetdose.mapping.overlap import Overlap, compute_overlap, warn_if_uncovered
 from tetdose.mapping.solve import SOLVERS, project_l2, solve_lsq
-from tetdose.mass import tet_mass_g
-from tetdose.mesh import TetMesh
 
 
 @dataclass(frozen=True, eq=False)
@@ -69,7 +69,7 @@ def map_density(mesh: TetMesh, ct_hu: Image, *, calibration: HUCalibration | Non
 
     A tetrahedron partly outside the CT gets the mean density of its covered part over its whole
     volume (a warning gives the uncovered fraction); one wholly outside all voxels is an error.
-    A CT that cannot hold HU (:func:`tetdose.image.check_ct_hu`) is refused. Only "lsq" can
+    A CT that cannot hold HU (:func:`tetdose.core.image.check_ct_hu`) is refused. Only "lsq" can
     return negative vertex densities (it undershoots at sharp edges, as the paper's method does).
     """
     if solver not in SOLVERS:

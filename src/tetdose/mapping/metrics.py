@@ -24,13 +24,13 @@ import numpy as np
 
 from tetdose._constants import MM3_PER_CM3
 from tetdose._typing import BoolArray
-from tetdose.calibration import HUCalibration
+from tetdose.core.calibration import HUCalibration
+from tetdose.core.image import Image, check_ct_hu
+from tetdose.core.mass import tet_mass_g
+from tetdose.core.mesh import TetMesh
+from tetdose.core.overlap import Overlap, compute_overlap
+from tetdose.core.voxelize import voxelize
 from tetdose.errors import GeometryMismatchError, ImageError
-from tetdose.image import Image, check_ct_hu
-from tetdose.mapping.overlap import Overlap, compute_overlap
-from tetdose.mass import tet_mass_g
-from tetdose.mesh import TetMesh
-from tetdose.voxelize import voxelize
 
 #: Default ROI: voxels whose covered fraction is at least this.
 ROI_MIN_COVER = 0.5

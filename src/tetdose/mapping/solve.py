@@ -26,8 +26,8 @@ import scipy.sparse.linalg as spla
 from threadpoolctl import threadpool_limits
 
 from tetdose._typing import FloatArray, IntArray
+from tetdose.core.mesh import TetMesh
 from tetdose.errors import SolverError
-from tetdose.mesh import TetMesh
 
 #: Relative residual of the conjugate-gradient solve of M·ρ = b.
 #: Names of the vertex-density solvers, as the CLI spells them (``--solver``, ``--method``):

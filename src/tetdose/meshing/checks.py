@@ -20,8 +20,8 @@ import numpy as np
 
 from tetdose._constants import MM3_PER_CM3
 from tetdose._typing import FloatArray
-from tetdose.image import Image
-from tetdose.mesh import FACE_VERTICES, TetMesh
+from tetdose.core.image import Image
+from tetdose.core.mesh import FACE_VERTICES, TetMesh
 from tetdose.meshing.distance import signed_distance
 from tetdose.meshing.labels import as_label_array
 

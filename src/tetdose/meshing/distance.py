@@ -27,7 +27,7 @@ import numpy as np
 from scipy import ndimage
 
 from tetdose._typing import FloatArray
-from tetdose.image import ImageGrid
+from tetdose.core.image import ImageGrid
 
 #: Voxels of background kept around a label's bounding box before its distance transform.
 MARGIN_VOX = 4

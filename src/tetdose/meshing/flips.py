@@ -37,7 +37,7 @@ from itertools import combinations
 import numpy as np
 
 from tetdose._typing import FloatArray, IntArray
-from tetdose.mesh import FACE_VERTICES
+from tetdose.core.mesh import FACE_VERTICES
 from tetdose.meshing._relocation_kernels import min_dihedral_vol6
 
 #: Largest ring of tetrahedra around an edge considered for edge removal.

@@ -39,9 +39,9 @@ from scipy.sparse.csgraph import connected_components
 
 from tetdose._optional import import_optional
 from tetdose._typing import FloatArray, IntArray
+from tetdose.core.image import Image
+from tetdose.core.mesh import TetMesh, compact_points
 from tetdose.errors import ImageError, MeshError
-from tetdose.image import Image
-from tetdose.mesh import TetMesh, compact_points
 
 #: Feature angle for ``classifySurfaces``: π keeps marching-cubes staircase steps from being
 #: taken as sharp edges (a smaller angle splits a voxelised sphere into hundreds of patches).

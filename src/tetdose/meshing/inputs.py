@@ -2,7 +2,7 @@
 
 * A label image (NRRD / MHA / NIfTI / DICOM SEG that SimpleITK reads) is used as it is.
 * RT Structure Set ROIs are rasterized on the CT grid by
-  :func:`tetdose.compare.rtstruct.structure_masks`; ROI i (in the order asked) becomes label
+  :func:`tetdose.dicom.rtstruct.structure_masks`; ROI i (in the order asked) becomes label
   i + 1, later ROIs winning where they overlap.
 * ``body="auto"`` adds the CT's patient outline (:func:`tetdose.meshing.labels.body_mask`),
   resampled by nearest neighbour onto the label grid when it differs from the CT grid, as label
@@ -15,14 +15,14 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from tetdose.core.image import Image
 from tetdose.errors import ImageError
-from tetdose.image import Image
 from tetdose.meshing.labels import as_label_array, body_mask
 
 
 def labels_from_structures(path: str, ct: Image, rois: Sequence[str]) -> tuple[Image, dict[int, str]]:
     """Label image on the CT grid from the ROIs ``rois`` of the RT Structure Set ``path``."""
-    from tetdose.compare.rtstruct import read_rtstruct, structure_masks
+    from tetdose.dicom.rtstruct import read_rtstruct, structure_masks
 
     if not rois:
         raise ImageError("name the ROIs to mesh with --roi NAME (repeat for several)")

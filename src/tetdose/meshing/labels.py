@@ -19,7 +19,7 @@ import numpy as np
 from scipy import ndimage
 
 from tetdose._typing import FloatArray, IntArray
-from tetdose.body import largest_component
+from tetdose.core.body import largest_component
 from tetdose.errors import ImageError
 
 #: More distinct values than this, or any negative value: the image is a CT, not labels.

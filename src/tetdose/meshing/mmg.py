@@ -46,12 +46,12 @@ from typing import NamedTuple
 
 import numpy as np
 
-from tetdose import tetgrid
 from tetdose._optional import import_optional
 from tetdose._typing import FloatArray, IntArray
+from tetdose.core import tetgrid
+from tetdose.core.image import Image
+from tetdose.core.mesh import TetMesh, compact_points, signed_volumes_mm3
 from tetdose.errors import MeshError
-from tetdose.image import Image
-from tetdose.mesh import TetMesh, compact_points, signed_volumes_mm3
 from tetdose.meshing import levelset
 from tetdose.meshing.checks import dihedral_angles_deg
 from tetdose.meshing.distance import DistanceField, signed_distance

@@ -33,7 +33,7 @@ from __future__ import annotations
 import numpy as np
 
 from tetdose._typing import FloatArray, IntArray
-from tetdose.mesh import FACE_VERTICES, signed_volumes_mm3
+from tetdose.core.mesh import FACE_VERTICES, signed_volumes_mm3
 from tetdose.meshing._relocation_kernels import compass_search, min_dihedral_vol6
 
 #: Relocation rounds over the remaining bad tetrahedra.

@@ -29,8 +29,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from tetdose._typing import FloatArray
+from tetdose.core.mesh import TetMesh
 from tetdose.errors import TetdoseError
-from tetdose.mesh import TetMesh
 from tetdose.motion.phases import PhaseSeries
 
 

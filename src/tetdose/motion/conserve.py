@@ -33,6 +33,7 @@ import numpy as np
 from tetdose._checks import check_density
 from tetdose._constants import MM3_PER_CM3
 from tetdose._typing import FloatArray
+from tetdose.core.mesh import TetMesh
 from tetdose.errors import MeshError, TetdoseError
 from tetdose.mapping.solve import (
     SOLVERS,
@@ -42,7 +43,6 @@ from tetdose.mapping.solve import (
     solve_lsq,
     vertex_average_matrix,
 )
-from tetdose.mesh import TetMesh
 from tetdose.motion.phases import DENSITY, PhaseSeries
 
 #: Density update methods: the mapping's solvers (one spelling, :data:`tetdose.mapping.solve.SOLVERS`).

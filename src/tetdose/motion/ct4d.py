@@ -1,6 +1,6 @@
 """4D virtual CT: every breathing phase voxelized on the reference CT's grid (paper §III, Fig. 9).
 
-For phase t, voxel j gets (``tetdose.voxelize``, mass-exact partial volumes)
+For phase t, voxel j gets (``tetdose.core.voxelize``, mass-exact partial volumes)
 
     ρ_j(t) = [m_j(t) + ρ_bg,j(t) · (Vol(V_j) − c_j(t))] / Vol(V_j),
 
@@ -27,13 +27,13 @@ from tqdm import tqdm
 
 from tetdose._atomic import atomic_write_dir
 from tetdose._constants import AIR_DENSITY_G_CM3
-from tetdose.calibration import HUCalibration
+from tetdose.core.calibration import HUCalibration
+from tetdose.core.image import Image
+from tetdose.core.io import write_image
+from tetdose.core.voxelize import voxelize
 from tetdose.errors import ImageError, MeshError, TetdoseError
-from tetdose.image import Image
-from tetdose.io import write_image
 from tetdose.motion.dvf import DisplacementField, warp_image
 from tetdose.motion.phases import PhaseSeries
-from tetdose.voxelize import voxelize
 
 #: Lowest and highest CT number written [HU] (int16 storage).
 HU_MIN, HU_MAX = -1024, 3071

@@ -3,7 +3,7 @@
 A scanner or planning system exports a 4D-CT as one CT series per phase (all files in one
 folder, or one sub-folder per phase). DICOM files anywhere below the folder are grouped by
 ``SeriesInstanceUID`` (headers read with pydicom, ``stop_before_pixels``) and each series is
-read with SimpleITK through :func:`tetdose.io.read_dicom_files`, which applies the checks of
+read with SimpleITK through :func:`tetdose.core.io.read_dicom_files`, which applies the checks of
 ``read_image`` (modality CT, one slice geometry, uniform slice spacing) and names the series in
 its error. Phases are ordered by the first of these, in order of trust, that every series has
 with distinct values:
@@ -30,9 +30,9 @@ from typing import Any
 
 import numpy as np
 
+from tetdose.core.image import Image
+from tetdose.core.io import read_ct, read_dicom_files
 from tetdose.errors import ImageError
-from tetdose.image import Image
-from tetdose.io import read_ct, read_dicom_files
 
 #: File name endings read as image files (not DICOM).
 IMAGE_SUFFIXES = (".nrrd", ".nhdr", ".mha", ".mhd", ".nii", ".nii.gz")

@@ -31,8 +31,8 @@ from pathlib import Path
 import numpy as np
 
 from tetdose._typing import FloatArray
+from tetdose.core.image import Image, ImageGrid
 from tetdose.errors import GeometryMismatchError, ImageError
-from tetdose.image import Image, ImageGrid
 
 #: Tolerance on the DVF cover test, in voxels (points this close outside the box are clamped).
 COVER_TOL_VOXELS = 1e-6

@@ -16,8 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
+from tetdose.core.image import Image
 from tetdose.errors import ImageError
-from tetdose.image import Image
 from tetdose.motion.ct4d_read import find_phase, read_4dct
 from tetdose.motion.dvf import write_dvf
 from tetdose.motion.register import RegistrationReport, RegistrationSettings, register_4dct
@@ -78,7 +78,7 @@ def mask_on(path: Path, like: Image) -> np.ndarray:
     by physical coordinates), as a boolean (nz, ny, nx) array."""
     import SimpleITK as sitk
 
-    from tetdose.io import read_image
+    from tetdose.core.io import read_image
 
     m = read_image(path)
     arr = m.array if m.grid.same_as(like.grid) else sitk.GetArrayFromImage(sitk.Resample(

@@ -22,8 +22,8 @@ import numpy as np
 
 from tetdose._optional import import_optional
 from tetdose._typing import BoolArray, FloatArray, IntArray
+from tetdose.core.mesh import TetMesh, signed_volumes_mm3
 from tetdose.errors import MeshError, TetdoseError
-from tetdose.mesh import TetMesh, signed_volumes_mm3
 from tetdose.motion.surface import Surface, closest_points, icp
 
 #: Liver elasticity of the paper's Table I: Young's modulus [kPa] and Poisson's ratio.

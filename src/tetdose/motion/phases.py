@@ -23,9 +23,9 @@ import numpy as np
 
 from tetdose._atomic import atomic_write_file
 from tetdose._typing import FloatArray
+from tetdose.core.io import read_mesh, write_mesh
+from tetdose.core.mesh import TetMesh
 from tetdose.errors import MeshError, TopologyMismatchError
-from tetdose.io import read_mesh, write_mesh
-from tetdose.mesh import TetMesh
 
 #: Name of the ParaView collection file written beside the phase VTUs.
 PVD_NAME = "phases.pvd"

@@ -43,9 +43,9 @@ from typing import NamedTuple
 import numpy as np
 from tqdm import tqdm
 
-from tetdose.body import largest_component
+from tetdose.core.body import largest_component
+from tetdose.core.image import Image
 from tetdose.errors import ImageError
-from tetdose.image import Image
 from tetdose.motion.dvf import DisplacementField
 
 METHODS = ("demons", "bspline")
@@ -431,7 +431,7 @@ def _bspline(fixed, moving, mask: np.ndarray, s: RegistrationSettings,  # noqa: 
 
 
 def _grid_of(like):  # noqa: ANN001, ANN202
-    from tetdose.image import ImageGrid
+    from tetdose.core.image import ImageGrid
 
     return ImageGrid(like.GetOrigin(), like.GetSpacing(), like.GetDirection(), like.GetSize())
 
@@ -473,7 +473,7 @@ def _report(fixed, moving, mask: np.ndarray, u: DisplacementField, reference: Im
 
 def _sub_field(u: DisplacementField, box: tuple[slice, slice, slice]) -> DisplacementField:
     """``u`` on the (z, y, x) index box: the same vectors at the same voxel centres."""
-    from tetdose.image import ImageGrid
+    from tetdose.core.image import ImageGrid
 
     start = np.array([box[2].start, box[1].start, box[0].start], dtype=float)
     size = (box[2].stop - box[2].start, box[1].stop - box[1].start, box[0].stop - box[0].start)

@@ -22,8 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tetdose.core.mesh import TetMesh
 from tetdose.errors import OptionError
-from tetdose.mesh import TetMesh
 from tetdose.motion.breathing import BreathingModel
 from tetdose.motion.conserve import PhaseReport, reference_density, update_series
 from tetdose.motion.fem import POISSON, YOUNG_KPA

@@ -30,10 +30,10 @@ from pathlib import Path
 import numpy as np
 
 from tetdose._atomic import atomic_write_file
+from tetdose.core.image import Image
+from tetdose.core.io import write_image, write_mesh
+from tetdose.core.mesh import TetMesh
 from tetdose.errors import TetdoseError
-from tetdose.image import Image
-from tetdose.io import write_image, write_mesh
-from tetdose.mesh import TetMesh
 from tetdose.phantoms._builders import BUILDERS
 from tetdose.phantoms._meshing import mesh_labels
 

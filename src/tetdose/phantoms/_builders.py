@@ -13,10 +13,10 @@ from typing import Any
 
 import numpy as np
 
-from tetdose import tetgrid
+from tetdose.core import tetgrid
+from tetdose.core.image import Image, ImageGrid
+from tetdose.core.mesh import TetMesh
 from tetdose.errors import TetdoseError
-from tetdose.image import Image, ImageGrid
-from tetdose.mesh import TetMesh
 from tetdose.phantoms import _shapes
 from tetdose.phantoms._meshing import mesh_labels
 

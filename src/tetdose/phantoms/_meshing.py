@@ -2,7 +2,7 @@
 
 Method: a structured grid of cubes of edge ``target_edge_mm`` (independent of the voxel size and
 shifted by a fraction of an edge, so its planes do not coincide with voxel planes) covers the
-labelled voxels; each cube is split into six Kuhn tetrahedra (conforming, see :mod:`tetdose.tetgrid`). A
+labelled voxels; each cube is split into six Kuhn tetrahedra (conforming, see :mod:`tetdose.core.tetgrid`). A
 tetrahedron is kept when the label of the voxel containing its centroid is one of ``label_ids``,
 and that label becomes its region. Optionally, interface and boundary vertices are then
 snapped onto the label surfaces, every cell kept positively oriented. The grid is built in the
@@ -16,10 +16,10 @@ from collections.abc import Iterable
 
 import numpy as np
 
-from tetdose import tetgrid
+from tetdose.core import tetgrid
+from tetdose.core.image import Image, ImageGrid
+from tetdose.core.mesh import TetMesh, compact_points, signed_volumes_mm3
 from tetdose.errors import ImageError, MeshError
-from tetdose.image import Image, ImageGrid
-from tetdose.mesh import TetMesh, compact_points, signed_volumes_mm3
 from tetdose.phantoms import _shapes
 
 #: Fraction of an edge by which the cube grid is shifted off the labelled region's voxel planes.

@@ -6,29 +6,36 @@ Model in, results out (OpenMC style)::
     result = simulate(mesh, plan, TransportSettings(n_histories=100_000))
     result.dose_gy, result.dose_std_gy, result.ledger
 
-``geometry`` is a :class:`~tetdose.transport.world.World` — a
-:class:`~tetdose.mesh.TetMesh` with point_data ``density`` [g/cm³] (and optional ``region``
-labels) inside an :class:`~tetdose.image.Image` of densities [g/cm³] (with an optional label
+``geometry`` is a :class:`~tetdose.transport.geometry.world.World` — a
+:class:`~tetdose.core.mesh.TetMesh` with point_data ``density`` [g/cm³] (and optional ``region``
+labels) inside an :class:`~tetdose.core.image.Image` of densities [g/cm³] (with an optional label
 image), either part alone — or a bare mesh or density image. One history loop serves every
 world (mesh-only and voxel-only are worlds with one part empty).
 Materials: region label → name from ``plan.materials``; any other cell takes its density class
-(:func:`tetdose.transport.xs.material_for_density`, Schneider-style).
+(:func:`tetdose.transport.physics.xs.material_for_density`, Schneider-style).
 
 Runs go batch group by batch group (numba threads over the batches of a group; a tqdm bar for
-runs longer than :data:`PROGRESS_DELAY_S`). :func:`tetdose.transport.job.run_batches` is the unit of work that
-:mod:`tetdose.transport.distributed` ships to dask workers for the same, bitwise, result.
+runs longer than :data:`PROGRESS_DELAY_S`). :func:`tetdose.transport.run.job.run_batches` is the
+unit of work that :mod:`tetdose.transport.run.distributed` ships to dask workers for the same,
+bitwise, result.
+
+Subpackages, in the order a history meets them: :mod:`.sources` (source particles),
+:mod:`.geometry` (tets, voxels, the hybrid world), :mod:`.physics` (materials, interaction data
+and sampling), :mod:`.history` (the history loop, tallies, :class:`DoseResult`), :mod:`.run`
+(settings, jobs, batches, dask). The plan it runs comes from :mod:`tetdose.plan`.
 """
 
 from __future__ import annotations
 
-from tetdose.image import Image
-from tetdose.mesh import TetMesh
-from tetdose.transport.geometry import mesh_geometry, morton_order
-from tetdose.transport.job import build_job, execute
-from tetdose.transport.model import Plan, TransportSettings
-from tetdose.transport.photon_source import PhotonSource
-from tetdose.transport.result import DoseResult
-from tetdose.transport.world import World, as_world
+from tetdose.core.image import Image
+from tetdose.core.mesh import TetMesh
+from tetdose.plan.model import Plan
+from tetdose.plan.photon_source import PhotonSource
+from tetdose.transport.geometry.tets import mesh_geometry, morton_order
+from tetdose.transport.geometry.world import World, as_world
+from tetdose.transport.history.result import DoseResult
+from tetdose.transport.run.job import build_job, execute
+from tetdose.transport.run.settings import TransportSettings
 
 __all__ = ["DoseResult", "PhotonSource", "Plan", "TransportSettings", "World", "as_world",
            "mesh_geometry", "morton_order", "run_mesh_transport", "run_voxel_transport",

@@ -1,0 +1,342 @@
+"""Reading and writing meshes (meshio) and images (SimpleITK); every write is atomic."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import os
+import warnings
+from collections.abc import Iterator, Sequence
+from contextvars import ContextVar
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from tetdose._atomic import atomic_write_file, check_output_file
+from tetdose.core.image import Image, check_ct_hu
+from tetdose.core.mesh import TetMesh, compact_points
+from tetdose.errors import ImageError, MeshError
+
+#: Relative tolerance on slice-to-slice spacing of a DICOM series.
+SLICE_SPACING_RTOL = 1e-3
+#: Largest |ImageOrientationPatient row·column| and | |row| − 1 | accepted (orthonormal).
+ORIENTATION_TOL = 1e-4
+#: Largest in-plane drift of slice positions against the orientation's normal [mm], as a
+#: fraction of the slice stack's length (a gantry tilt of 0.06°) or 0.01 mm, whichever is larger.
+SHEAR_REL_TOL = 1e-3
+#: Coordinates beyond this [mm] (1 km) cannot be patient coordinates in mm.
+MAX_COORD_MM = 1e6
+#: Image file endings SimpleITK writes as 3-D images.
+IMAGE_SUFFIXES = (".nrrd", ".nhdr", ".mha", ".mhd", ".nii", ".nii.gz", ".hdr", ".vtk", ".tif",
+                  ".tiff", ".gipl", ".gipl.gz", ".hdf5", ".h5", ".mnc")
+#: Mesh file endings meshio writes with tetrahedra (VTU recommended).
+MESH_SUFFIXES = (".vtu", ".vtk", ".msh", ".xdmf", ".xmf", ".inp", ".mesh", ".meshb", ".med",
+                 ".ele", ".node", ".h5m", ".f3grid", ".avs", ".dat", ".bdf", ".fem", ".nas",
+                 ".exo", ".e", ".ex2", ".cgns", ".tec", ".ugrid", ".su2", ".vol", ".vol.gz")
+#: cell_data names read as region labels, in order of preference.
+REGION_NAMES = ("region", "gmsh:physical", "medit:ref", "CellEntityIds", "tetgen:ref")
+#: Whether tilted/sheared DICOM series are resampled (:func:`tilted_policy`) or refused.
+_RESAMPLE_TILTED: ContextVar[bool] = ContextVar("resample_tilted", default=False)
+#: How the refusal of a tilted series names the way to allow it.
+RESAMPLE_HINT = ("rerun with --resample-tilted (Python: resample_tilted=True) to resample it onto "
+                 "an orthogonal grid (linear, −1000 HU outside), or resample the series first")
+
+
+@contextlib.contextmanager
+def tilted_policy(resample: bool) -> Iterator[None]:
+    """During the block, DICOM series read without an explicit ``resample_tilted`` resample a
+    gantry tilt or sheared/skewed grid (``resample=True``) instead of refusing it."""
+    token = _RESAMPLE_TILTED.set(bool(resample))
+    try:
+        yield
+    finally:
+        _RESAMPLE_TILTED.reset(token)
+
+
+def read_mesh(path: str | os.PathLike[str], *, fix_orientation: bool = False) -> TetMesh:
+    """Read a tetrahedral mesh with meshio (VTU/VTK, Gmsh, Abaqus .inp, TetGen, Medit …).
+
+    Only ``tetra`` cells are kept; point and cell arrays are carried along. A region label is
+    taken from the first cell array named in :data:`REGION_NAMES`. Inverted tetrahedra are an
+    error unless ``fix_orientation`` is true (then two vertices of each are swapped).
+    """
+    import meshio
+
+    path = Path(path)
+    if not path.exists():
+        raise MeshError(f"mesh file {path} does not exist")
+    if path.is_file() and path.stat().st_size == 0:
+        raise MeshError(f"mesh file {path} is empty; give a VTU/VTK/MSH/INP/MESH/ELE file")
+    said = io.StringIO()
+    try:
+        with contextlib.redirect_stdout(said), contextlib.redirect_stderr(said):
+            m = meshio.read(path)
+    except (Exception, SystemExit) as exc:  # meshio raises many types, even SystemExit
+        why = str(exc) if not isinstance(exc, SystemExit) else said.getvalue()
+        why = " ".join(why.split()) or type(exc).__name__
+        raise MeshError(f"cannot read mesh {path}: {why}; give a VTU/VTK/MSH/INP/MESH/ELE file"
+                        ) from exc
+    blocks = [i for i, c in enumerate(m.cells) if c.type == "tetra"]
+    if not blocks:
+        kinds = sorted({c.type for c in m.cells})
+        raise MeshError(f"{path} has no tetrahedra (cell types: {kinds}); tetdose needs a "
+                        "volume mesh of linear tetrahedra — mesh the surface first")
+    tets = np.concatenate([m.cells[i].data for i in blocks])
+    cell_data = {
+        name: np.concatenate([np.asarray(arrs[i]) for i in blocks])
+        for name, arrs in m.cell_data.items()
+    }
+    region = None
+    for name in REGION_NAMES:
+        if name in cell_data:
+            region = cell_data.pop(name).astype(np.int64).reshape(-1)
+            break
+    points = np.asarray(m.points, dtype=np.float64)
+    if points.shape[1] != 3:
+        raise MeshError(f"{path}: points must be 3-D, got {points.shape[1]} coordinates")
+    point_data = {k: np.asarray(v) for k, v in m.point_data.items()}
+    if len(np.unique(tets)) < len(points):  # surface-only nodes and the like
+        points, tets, used = compact_points(points, tets)
+        point_data = {k: v[used] for k, v in point_data.items()}
+    mesh = TetMesh(points, tets, region, point_data, cell_data)
+    far = np.abs(mesh.points_mm).max(axis=1) > MAX_COORD_MM
+    if far.any():
+        i = int(np.flatnonzero(far)[0])
+        raise MeshError(
+            f"{int(far.sum())} point(s) in {path} lie more than {MAX_COORD_MM / 1e6:g} km from the "
+            f"origin (first: id {i} at {np.round(mesh.points_mm[i], 1).tolist()} mm); patient "
+            "coordinates must be in mm — fix the mesh file"
+        )
+    if fix_orientation:
+        mesh = mesh.with_fixed_orientation()
+    mesh.check_cells(context=f"in {path}")
+    return mesh
+
+
+def write_mesh(path: str | os.PathLike[str], mesh: TetMesh, *,
+               inputs: tuple[str | os.PathLike[str], ...] = ()) -> Path:
+    """Write a mesh with all its arrays (VTU recommended); atomic, never onto one of ``inputs``.
+
+    The extension (one of :data:`MESH_SUFFIXES`) chooses the format.
+    """
+    import meshio
+
+    check_output_file(path, suffixes=MESH_SUFFIXES, inputs=inputs, what="mesh output")
+
+    cell_data = {k: [np.asarray(v)] for k, v in mesh.cell_data.items()}
+    if mesh.region is not None:
+        cell_data["region"] = [mesh.region.astype(np.int32)]
+    m = meshio.Mesh(mesh.points_mm, [("tetra", mesh.tets)], point_data=dict(mesh.point_data),
+                    cell_data=cell_data)
+    path = Path(path)
+    with atomic_write_file(path, inputs=inputs) as tmp:
+        meshio.write(tmp, m, file_format=_meshio_format(path))
+    return path
+
+
+def _meshio_format(path: Path) -> str | None:
+    return {".vtu": "vtu", ".vtk": "vtk", ".msh": "gmsh", ".xdmf": "xdmf"}.get(path.suffix.lower())
+
+
+def read_image(path: str | os.PathLike[str], *, resample_tilted: bool | None = None) -> Image:
+    """Read a scalar image: a DICOM series folder, or a file SimpleITK reads (NRRD, MHA, NIfTI…).
+
+    A DICOM folder must hold one CT series with uniformly spaced slices; values are returned in
+    HU (RescaleSlope/Intercept applied). A tilted or sheared series is refused, or with
+    ``resample_tilted`` (default: :func:`tilted_policy`) resampled (:mod:`tetdose.core.tilted`).
+    """
+    import SimpleITK as sitk
+
+    path = Path(path)
+    if not path.exists():
+        raise ImageError(f"image {path} does not exist")
+    if path.is_dir():
+        return _read_dicom_series(path, resample_tilted)
+    try:
+        img = sitk.ReadImage(str(path))
+    except RuntimeError as exc:
+        raise ImageError(f"cannot read image {path}: {str(exc).strip().splitlines()[-1]}") from exc
+    return Image.from_sitk(img)
+
+
+def read_ct(path: str | os.PathLike[str], *, resample_tilted: bool | None = None) -> Image:
+    """Read a CT [HU] with :func:`read_image` and refuse what cannot be one
+    (:func:`tetdose.core.image.check_ct_hu`: unsigned or 8-bit pixels, NaN voxels, values off the HU
+    range)."""
+    return check_ct_hu(read_image(path, resample_tilted=resample_tilted), f"the CT {path}")
+
+
+def _read_dicom_series(folder: Path, resample_tilted: bool | None = None) -> Image:
+    import SimpleITK as sitk
+
+    reader = sitk.ImageSeriesReader()
+    series = reader.GetGDCMSeriesIDs(str(folder))
+    if not series:
+        raise ImageError(f"{folder} holds no DICOM image series")
+    if len(series) > 1:
+        raise ImageError(f"{folder} holds {len(series)} series; give a folder with one CT series")
+    return read_dicom_files(reader.GetGDCMSeriesFileNames(str(folder), series[0]), what=str(folder),
+                            resample_tilted=resample_tilted)
+
+
+def read_dicom_files(files: Sequence[str | os.PathLike[str]], *, what: str,
+                     headers: Sequence[Any] | None = None,
+                     resample_tilted: bool | None = None) -> Image:
+    """Read the slices ``files`` of one CT series (in slice order) as one image [HU].
+
+    Checks (the error names ``what``): modality CT; every slice with the same rows, columns,
+    pixel spacing and orientation; uniformly spaced slice positions along the slice normal (a
+    missing or duplicate slice breaks it). ``headers``: the files' pydicom headers if already read.
+    A gantry tilt, sheared slice positions or a non-orthonormal ImageOrientationPatient are
+    refused unless ``resample_tilted`` (default: :func:`tilted_policy`); then the stack is
+    resampled onto an orthogonal grid (:mod:`tetdose.core.tilted`), with a warning saying so.
+    """
+    import pydicom
+    import SimpleITK as sitk
+
+    files = [str(f) for f in files]
+    if headers is None:
+        headers = [pydicom.dcmread(f, stop_before_pixels=True) for f in files]
+    modality = {str(h.get("Modality", "")) for h in headers}
+    if modality != {"CT"}:
+        raise ImageError(f"{what}: modality {sorted(modality)}, expected CT; give a CT series")
+    resample = _RESAMPLE_TILTED.get() if resample_tilted is None else resample_tilted
+    normal, skewed = _check_orientation(what, headers, allow=resample)
+    _check_rescale(what, headers)
+    _check_slice_geometry(headers, what)
+    sheared = len(files) > 1 and _check_shear(what, headers, normal, allow=resample)
+    if skewed or sheared:
+        return _read_tilted(files, headers, normal, what)
+    reader = sitk.ImageSeriesReader()
+    reader.SetFileNames(files)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        img = reader.Execute()
+    return check_ct_hu(Image.from_sitk(img), f"the CT series {what}")
+
+
+def _read_tilted(files: list[str], headers: Sequence[Any], normal: np.ndarray,
+                 what: str) -> Image:
+    """A tilted/sheared/skewed series resampled onto an orthogonal grid (tetdose.core.tilted)."""
+    import SimpleITK as sitk
+
+    from tetdose.core.tilted import OUTSIDE_HU, resample_stack, stack_affine
+
+    pos = np.array([[float(v) for v in h.ImagePositionPatient] for h in headers])
+    order = np.argsort(pos @ normal, kind="stable")
+    reader = sitk.ImageSeriesReader()
+    reader.SetFileNames([files[i] for i in order])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        stack = sitk.GetArrayFromImage(reader.Execute())
+    iop = np.array([float(v) for v in headers[0].ImageOrientationPatient])
+    spacing = tuple(float(v) for v in headers[0].PixelSpacing)
+    a, p0 = stack_affine(pos[order], iop[:3], iop[3:], spacing)  # type: ignore[arg-type]
+    image = resample_stack(stack, a, p0)
+    tilt = float(np.degrees(np.arccos(min(1.0, abs(a[:, 2] @ normal) / np.linalg.norm(a[:, 2])))))
+    warnings.warn(f"{what}: tilted or sheared series (slice axis {tilt:.2f}° off the slice "
+                  "normal) resampled onto an orthogonal grid (linear interpolation, "
+                  f"{OUTSIDE_HU:g} HU outside the stack)", stacklevel=3)
+    return check_ct_hu(image, f"the CT series {what}")
+
+
+def _check_slice_geometry(headers: Sequence[Any], what: str) -> None:
+    """Same in-plane geometry on every slice, and uniform slice spacing (see read_dicom_files)."""
+    def plane(h: Any) -> tuple:
+        return (int(h.get("Rows", 0)), int(h.get("Columns", 0)),
+                tuple(round(float(v), 4) for v in h.get("PixelSpacing", [0, 0])),
+                tuple(round(float(v), 4) for v in h.get("ImageOrientationPatient", [0] * 6)))
+
+    kinds = {plane(h) for h in headers}
+    if len(kinds) > 1:
+        raise ImageError(
+            f"{what}: slices differ in size, pixel spacing or orientation ({len(kinds)} kinds: "
+            f"{sorted(kinds)[:2]} …); a series must have one geometry — export it again"
+        )
+    if len(headers) > 1:
+        iop = np.array(headers[0].ImageOrientationPatient, dtype=float)
+        normal = np.cross(iop[:3], iop[3:])
+        pos = np.sort([float(np.dot(normal, h.ImagePositionPatient)) for h in headers])
+        gaps = np.diff(pos)
+        if gaps.min() <= 0 or (gaps.max() - gaps.min()) > SLICE_SPACING_RTOL * gaps.mean():
+            raise ImageError(
+                f"{what}: slice spacing is not uniform (gaps {gaps.min():.4g}…{gaps.max():.4g} mm"
+                "); missing or duplicate slices — resample to a uniform grid first"
+            )
+
+
+def _check_orientation(folder: Path, headers: list,  # type: ignore[type-arg]
+                       allow: bool = False) -> tuple[np.ndarray, bool]:
+    """The series' common ImageOrientationPatient → (unit slice normal, whether it is not
+    orthonormal: refused unless ``allow``)."""
+    try:
+        iops = np.array([[float(v) for v in h.ImageOrientationPatient] for h in headers])
+        np.array([[float(v) for v in h.ImagePositionPatient] for h in headers]).reshape(-1, 3)
+    except (AttributeError, TypeError, ValueError) as exc:
+        raise ImageError(f"{folder}: a slice lacks a valid ImageOrientationPatient or "
+                         "ImagePositionPatient; give a complete CT series") from exc
+    if iops.shape[1] != 6:
+        raise ImageError(f"{folder}: ImageOrientationPatient must hold 6 numbers")
+    if np.abs(iops - iops[0]).max() > ORIENTATION_TOL:
+        raise ImageError(f"{folder}: the slices have different ImageOrientationPatient; give a "
+                         "series whose slices share one orientation")
+    row, col = iops[0, :3], iops[0, 3:]
+    dev = max(abs(np.linalg.norm(row) - 1), abs(np.linalg.norm(col) - 1), abs(row @ col))
+    skewed = dev > ORIENTATION_TOL
+    if skewed and not allow:
+        raise ImageError(
+            f"{folder}: ImageOrientationPatient {iops[0].round(6).tolist()} is not orthonormal "
+            f"(row·column = {row @ col:.3g}); refused, not resampled — {RESAMPLE_HINT}"
+        )
+    normal = np.cross(row, col)
+    return normal / np.linalg.norm(normal), bool(skewed)
+
+
+def _check_rescale(folder: Path, headers: list) -> None:  # type: ignore[type-arg]
+    """RescaleSlope/Intercept, where present, must be finite numbers and the slope non-zero."""
+    for h in headers:
+        try:
+            slope = float(h.get("RescaleSlope", 1.0))
+            intercept = float(h.get("RescaleIntercept", 0.0))
+        except (TypeError, ValueError) as exc:
+            raise ImageError(f"{folder}: RescaleSlope/RescaleIntercept are not numbers; fix the "
+                             "series headers") from exc
+        if not (np.isfinite(slope) and np.isfinite(intercept) and slope != 0):
+            raise ImageError(f"{folder}: RescaleSlope {slope:g}, RescaleIntercept {intercept:g} "
+                             "cannot give HU; fix the series headers")
+
+
+def _check_shear(folder: Path, headers: list, normal: np.ndarray,  # type: ignore[type-arg]
+                 allow: bool = False) -> bool:
+    """Whether slice positions drift in-plane along the stack (gantry tilt, sheared grid):
+    refused unless ``allow``."""
+    pos = np.array([[float(v) for v in h.ImagePositionPatient] for h in headers])
+    along = pos @ normal
+    first = int(np.argmin(along))
+    rel = pos - pos[first]
+    drift = rel - np.outer(along - along[first], normal)
+    shear_mm = float(np.sqrt((drift**2).sum(axis=1)).max())
+    length = float(along.max() - along.min())
+    sheared = shear_mm > max(0.01, SHEAR_REL_TOL * length)
+    if sheared and not allow:
+        tilt = float(np.degrees(np.arctan2(shear_mm, length)))
+        raise ImageError(
+            f"{folder}: slice positions drift {shear_mm:.3g} mm in-plane over the {length:.4g} mm "
+            f"stack (gantry tilt or sheared grid, ≈ {tilt:.2f}°); refused, not resampled — "
+            f"{RESAMPLE_HINT}"
+        )
+    return bool(sheared)
+
+
+def write_image(path: str | os.PathLike[str], image: Image, *, compress: bool = True,
+                inputs: tuple[str | os.PathLike[str], ...] = ()) -> Path:
+    """Write an image with SimpleITK (format from the extension, one of :data:`IMAGE_SUFFIXES`:
+    .nrrd, .mha, .nii.gz …); atomic, never onto one of ``inputs``."""
+    import SimpleITK as sitk
+
+    check_output_file(path, suffixes=IMAGE_SUFFIXES, inputs=inputs, what="image output")
+    path = Path(path)
+    with atomic_write_file(path, inputs=inputs) as tmp:
+        sitk.WriteImage(image.to_sitk(), str(tmp), compress)
+    return path

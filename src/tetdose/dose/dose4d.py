@@ -1,0 +1,244 @@
+"""4D dose: photon transport on every breathing phase, accumulated on the mesh and on voxels.
+
+Each phase p runs on its own deformed mesh (same tetrahedra, moved vertices, re-solved
+densities) with the random stream ``p`` of the master seed, so phases are independent and the
+run is reproducible. The mesh accumulation needs no warping because every tetrahedron keeps its
+mass (:mod:`tetdose.dose.accumulate`).
+
+**The body of each phase.** Without a CT the mesh is alone in vacuum. With a reference CT the
+mesh runs inside the phase's body (the hybrid world, :mod:`tetdose.transport.geometry.world`), and the
+voxel-only reference dose of the phase is computed on exactly that body:
+  * ``phase_ct`` given (a real 4D-CT, one CT per phase on one grid): that phase's CT;
+  * ``dvfs`` given (the phases came from displacement fields): the virtual phase CT with the
+    reference CT warped by the phase's DVF outside the mesh;
+  * otherwise the virtual phase CT of :func:`tetdose.motion.ct4d.phase_densities`: the mesh
+    voxelized (mass-exact) and, outside it, the reference CT unmoved — voxels the moving mesh
+    leaves get the reference CT's density back, voxels it enters are partly mesh (as ``4dct``).
+In the hybrid world a voxel cut by the mesh surface is transported with its body density on the
+part outside the mesh. The voxel part accumulates per voxel, ΣwE/Σwm (exact when the tissue
+outside the mesh does not move, i.e. the reference-CT body); the voxel-only reference doses are
+accumulated onto the reference grid by direct dose mapping and by energy/mass transfer, with the
+motion taken from the mesh, so the accumulations differ only by method. With a
+``dask.distributed`` client the batches of every phase and geometry run on the cluster
+(:mod:`tetdose.transport.run.distributed`), bitwise the same doses as in this process.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from tetdose._atomic import atomic_write_dir
+from tetdose.core.calibration import HUCalibration
+from tetdose.core.image import Image
+from tetdose.core.io import write_image, write_mesh
+from tetdose.core.mesh import TetMesh
+from tetdose.dose.absolute import absolute_dose4d
+from tetdose.dose.accumulate import (
+    AccumulatedDose,
+    accumulate_meshes,
+    accumulate_static_voxels,
+    direct_dose_mapping,
+    energy_mass_transfer,
+)
+from tetdose.errors import ImageError, MeshError
+from tetdose.motion.ct4d import phase_densities
+from tetdose.motion.dvf import DisplacementField
+from tetdose.motion.phases import PhaseSeries
+from tetdose.transport import DoseResult, Plan, TransportSettings, World
+from tetdose.transport.run.distributed import simulate_on
+
+
+@dataclass(frozen=True, eq=False)
+class VoxelDose4D:
+    """Per-phase voxel doses on the virtual 4D-CT and their two accumulations [Gy]."""
+
+    density: list[Image]  # per-phase density [g/cm³] used for transport
+    results: list[DoseResult]
+    direct_mapping: Image  # (a) dose interpolated through the motion
+    energy_mass_transfer: Image  # (b) energy and mass moved with the motion
+
+    @property
+    def doses(self) -> list[Image]:
+        return [r.to_images()[0] for r in self.results]
+
+
+@dataclass(frozen=True, eq=False)
+class BodyDose4D:
+    """The voxel part of hybrid phase runs (the body outside the mesh), accumulated per voxel
+    (ΣwE/Σwm), and the combined accumulated dose on the CT grid (mesh energy put on the voxels
+    through the exact overlaps of the reference mesh) [Gy]."""
+
+    accumulated: Image
+    accumulated_std: Image
+    combined: Image
+
+
+@dataclass(frozen=True, eq=False)
+class Dose4D:
+    """Per-phase mesh (or hybrid) doses, their accumulation on the reference mesh, the body's
+    voxel part (hybrid runs) and the voxel-only way."""
+
+    series: PhaseSeries
+    results: list[DoseResult]
+    accumulated: AccumulatedDose
+    voxel: VoxelDose4D | None
+    body: BodyDose4D | None = None
+
+    def summary(self) -> dict[str, object]:
+        """Ledger, lost photons and timing per phase, and the accumulated dose range.
+
+        ``wall_s``: the phase's run (with dask: the whole distributed call); ``transport_s``:
+        the time spent on this phase's batches (with dask: summed over its worker tasks).
+        """
+        out: dict[str, object] = {
+            "world": self.results[0].geometry,
+            "phases": [{"phase_percent": float(self.series.phase_percent[k]),
+                        "ledger": r.ledger, "lost_photons": r.lost_photons,
+                        "relocations": r.relocations, "wall_s": r.wall_s,
+                        "transport_s": r.extra.get("task_s", r.wall_s),
+                        "max_dose_gy": float(r.mesh_part().dose_gy.max()),
+                        "mesh_voxel_switches": int(r.counts_per_batch[:, 5].sum())}
+                       for k, r in enumerate(self.results)],
+            "accumulated_max_dose_gy": float(self.accumulated.dose_gy.max()),
+            "weights": self.accumulated.weights.tolist(),
+            "units": {"dose": self.results[0].record()["units"]["dose"]},
+        }
+        if self.body is not None:
+            out["body_accumulated_max_dose_gy"] = float(self.body.accumulated.array.max())
+            out["combined_accumulated_max_dose_gy"] = float(self.body.combined.array.max())
+        return out
+
+
+def run_dose4d(series: PhaseSeries, plan: Plan, settings: TransportSettings, *,
+               ct_hu: Image | None = None, calibration: HUCalibration | None = None,
+               phase_density: list[Image] | None = None, phase_ct: list[Image] | None = None,
+               dvfs: list[DisplacementField] | None = None, progress: bool = False,
+               client: Any = None, batches_per_task: int = 1) -> Dose4D:  # noqa: ANN401
+    """Transport ``plan`` on every phase of ``series`` (which must carry densities).
+
+    With ``ct_hu`` every phase runs in the hybrid world — the phase mesh inside the phase's body
+    (module docstring: ``phase_ct`` HU images of a real 4D-CT, else the virtual phase CT, with
+    ``dvfs`` warping the reference CT outside the mesh) — and the voxel-only doses on the same
+    bodies and their accumulations are computed too (``phase_density``: the bodies' density
+    images if already computed). Phase k (hybrid and voxels) draws from random stream k of
+    ``settings.seed``. With a ``dask.distributed`` ``client`` every phase's batches
+    (``batches_per_task`` per task) of both geometries are spread over the cluster at once
+    (:func:`tetdose.transport.run.distributed.simulate_distributed`); the doses are bitwise those of
+    the local run.
+    """
+    if series.density_g_cm3 is None:
+        raise MeshError("the phases carry no density; run the density update first "
+                        "(tetdose deform, or motion.update_series)")
+    n = series.n_phases
+    plan = plan.resolved(series.reference)  # isocenter = "structure" → its planning centroid
+    meshes = [series.mesh(k) for k in range(n)]
+    density = None
+    if ct_hu is not None or phase_ct is not None:
+        density = phase_density or _bodies(series, ct_hu, phase_ct, dvfs, calibration, progress)
+        if len(density) != n:
+            raise ImageError(f"{len(density)} phase density images for {n} phases; give one "
+                             "per phase")
+        for img in density[1:]:
+            density[0].grid.require_same(img.grid, "the phase CTs")
+    worlds = [World(mesh=m, density=None if density is None else density[k])
+              for k, m in enumerate(meshes)]
+    geoms: list[World | TetMesh | Image] = [*worlds, *(density or [])]
+    streams = [replace(settings, stream=k % n) for k in range(len(geoms))]
+    results = simulate_on(client, geoms, plan, streams, batches_per_task=batches_per_task,
+                          progress=progress, desc="dose per phase (mesh, then voxels)")
+    parts = [r.mesh_part() for r in results[:n]]
+    accumulated = accumulate_meshes(meshes, [r.dose_gy for r in parts],
+                                    weights=series.time_weight,
+                                    dose_std_gy=[r.dose_std_gy for r in parts])
+    voxel = body = None
+    if density is not None:
+        voxel = _voxel_way(series, density, results[n:])
+        body = _body_way(series, accumulated, results[:n])
+    # Prescription (tetdose.plan.prescription): one scale for every phase and accumulation.
+    return absolute_dose4d(Dose4D(series, results[:n], accumulated, voxel, body), plan)
+
+
+def _bodies(series: PhaseSeries, ct_hu: Image | None, phase_ct: list[Image] | None,
+            dvfs: list[DisplacementField] | None, calibration: HUCalibration | None,
+            progress: bool) -> list[Image]:
+    """The density [g/cm³] of every phase's body (module docstring)."""
+    cal = calibration or HUCalibration.schneider2000()
+    if phase_ct is not None:
+        return [Image(cal.density(ct.array).astype(np.float64), ct.grid) for ct in phase_ct]
+    return phase_densities(series, ct_hu, calibration=cal, dvfs=dvfs, progress=progress)
+
+
+def _body_way(series: PhaseSeries, accumulated: AccumulatedDose,
+              results: list[DoseResult]) -> BodyDose4D:
+    """Voxel part accumulated per voxel, and the combined (mesh + voxel) dose on the grid."""
+    from tetdose.core.transfer import mesh_dose_to_grid, mesh_mass_on_grid
+
+    grid = results[0].grid
+    parts = [r.voxel_part() for r in results]
+    dose, std, mass = accumulate_static_voxels(
+        [p.dose_gy for p in parts], [p.mass_g for p in parts], weights=series.time_weight,
+        dose_std_gy=[p.dose_std_gy for p in parts])
+    ref = series.reference.with_data(point_data={"density": series.density_g_cm3[0]})
+    mesh_dose = mesh_dose_to_grid(ref, accumulated.dose_gy, grid).array.ravel()
+    mesh_mass = mesh_mass_on_grid(ref, grid).array.ravel()
+    total = mass + mesh_mass
+    combined = np.divide(dose * mass + mesh_dose * mesh_mass, total, out=np.zeros_like(total),
+                         where=total > 0)
+    shape = grid.shape
+    return BodyDose4D(Image(dose.reshape(shape), grid),
+                      Image((std if std is not None else np.zeros_like(dose)).reshape(shape),
+                            grid), Image(combined.reshape(shape), grid))
+
+
+def _voxel_way(series: PhaseSeries, density: list[Image],
+               results: list[DoseResult]) -> VoxelDose4D:
+    doses = [r.to_images()[0] for r in results]
+    ref, pts, w = series.reference, series.points_mm, series.time_weight
+    grid = density[0].grid
+    return VoxelDose4D(density, results,
+                       direct_dose_mapping(ref, pts, doses, grid, weights=w),
+                       energy_mass_transfer(ref, pts, doses, density, grid, weights=w))
+
+
+def write_dose4d(result: Dose4D, out_dir: str | os.PathLike[str]) -> Path:
+    """Write one dose VTU (+ JSON run record) per phase, ``accumulated.vtu`` on the reference
+    mesh; for hybrid runs ``body/`` (per-phase combined dose images, the voxel part accumulated
+    and ``accumulated_combined.nrrd``); with the voxel way ``voxel/`` phase doses and both
+    accumulations; atomic."""
+    out = Path(out_dir)
+    with atomic_write_dir(out) as tmp:
+        for k, r in enumerate(result.results):
+            stem = f"phase_{result.series.phase_percent[k]:05.1f}"
+            write_mesh(tmp / f"{stem}.vtu", r.to_mesh(result.series.mesh(k)))
+            r.save_json(tmp / f"{stem}.json")
+        acc = result.accumulated
+        write_mesh(tmp / "accumulated.vtu", result.series.reference.with_data(cell_data={
+            "dose": acc.dose_gy, "dose_std": acc.dose_std_gy if acc.dose_std_gy is not None
+            else np.zeros_like(acc.dose_gy), "mass_g": acc.mass_g}))
+        if result.body is not None:
+            body = tmp / "body"
+            for k, r in enumerate(result.results):
+                stem = f"phase_{result.series.phase_percent[k]:05.1f}"
+                write_image(body / f"{stem}_combined_dose.nrrd", r.to_images()[0])
+            write_image(body / "accumulated_voxel_part.nrrd", result.body.accumulated)
+            write_image(body / "accumulated_voxel_part_std.nrrd", result.body.accumulated_std)
+            write_image(body / "accumulated_combined.nrrd", result.body.combined)
+        if result.voxel is not None:
+            vox = tmp / "voxel"
+            for k, r in enumerate(result.voxel.results):
+                stem = f"phase_{result.series.phase_percent[k]:05.1f}"
+                dose, std = r.to_images()
+                write_image(vox / f"{stem}_dose.nrrd", dose)
+                write_image(vox / f"{stem}_dose_std.nrrd", std)
+                r.save_json(vox / f"{stem}.json")
+            write_image(vox / "accumulated_direct_mapping.nrrd", result.voxel.direct_mapping)
+            write_image(vox / "accumulated_energy_mass_transfer.nrrd",
+                        result.voxel.energy_mass_transfer)
+        (tmp / "summary.json").write_text(json.dumps(result.summary(), indent=2) + "\n")
+    return out

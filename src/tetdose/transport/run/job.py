@@ -1,0 +1,204 @@
+"""A transport run as a unit of work: world → kernel arrays (:class:`TransportJob`), batch rows
+anywhere (:func:`run_batches`: this process's threads or a dask worker), rows → :class:`DoseResult`.
+
+Every batch row depends only on the seed, the batch index and the inputs (counter-based streams),
+so rows computed anywhere are bitwise the same; :mod:`tetdose.transport.run.distributed` ships jobs
+to dask workers and assembles with the same :func:`assemble`.
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from dataclasses import replace
+from typing import NamedTuple
+
+import numba
+import numpy as np
+from tqdm.auto import tqdm
+
+from tetdose._typing import FloatArray, IntArray
+from tetdose._version import __version__
+from tetdose.core.image import ImageGrid
+from tetdose.errors import PlanError
+from tetdose.plan.model import Plan
+from tetdose.transport.geometry._world import WorldGeometry
+from tetdose.transport.geometry.world import MeshOnGrid, World, world_arrays
+from tetdose.transport.history._photon import C_MISSED, N_COUNTS, N_LEDGER
+from tetdose.transport.history.result import DoseResult
+from tetdose.transport.physics.xs import (
+    DENSITY_CLASS_MATERIALS,
+    CrossSections,
+    build_cross_sections,
+    material_for_density,
+)
+from tetdose.transport.run._batches import run_world
+from tetdose.transport.run.settings import TransportSettings
+from tetdose.transport.sources._sample import SourceArrays
+from tetdose.transport.sources.arrays import E_MAX_MEV, source_arrays
+
+#: Batches per kernel call and thread (groups keep the progress bar moving).
+BATCH_GROUP_PER_THREAD = 2
+#: The progress bar appears only for runs longer than this [s].
+PROGRESS_DELAY_S = 2.0
+#: Histories of the pilot run that checks the beams reach the world and times a history.
+PILOT_HISTORIES = 1000
+#: A run estimated to take longer than this [s] is announced (warning) before it starts.
+LONG_RUN_S = 600.0
+#: A run estimated to take longer than this [s] (30 days) is refused: surely a typo, not a plan.
+MAX_RUN_S = 30 * 86400.0
+
+Rows = tuple[FloatArray, FloatArray, IntArray]
+
+
+class TransportJob(NamedTuple):
+    """Everything a batch run needs (picklable, for dask workers too)."""
+
+    kind: str  # "mesh" | "voxel" | "hybrid"
+    geom: WorldGeometry
+    names: list[str]  # material names, by material index
+    src: SourceArrays  # in the world's frame
+    mass_g: FloatArray  # (M + V,) cell masses, mesh order then voxels [g]
+    order: IntArray | None  # kernel tet i is mesh tet order[i]
+    n_tets: int
+    grid: ImageGrid | None
+
+
+def assign_materials(mean_density_g_cm3: FloatArray, region: IntArray | None,
+                     plan: Plan) -> tuple[IntArray, list[str]]:
+    """Material index per cell and the material names used: region label → ``plan.materials``,
+    any other cell its density class (:func:`tetdose.transport.physics.xs.material_for_density`)."""
+    names = list(DENSITY_CLASS_MATERIALS)
+    mat = material_for_density(mean_density_g_cm3).astype(np.intp)
+    if plan.materials and region is None:
+        warnings.warn("plan [materials] given but the geometry has no region labels; "
+                      "every cell gets its density-class material", stacklevel=4)
+    elif region is not None:
+        for label, name in plan.materials.items():
+            if name not in names:
+                names.append(name)
+            mat[region == label] = names.index(name)
+    used, mat = np.unique(mat, return_inverse=True)
+    return np.ascontiguousarray(mat.astype(np.intp)), [names[i] for i in used]
+
+
+def build_job(world: World, plan: Plan, settings: TransportSettings
+              ) -> tuple[TransportJob, MeshOnGrid | None]:
+    """Kernel arrays of ``world`` and the mesh-on-grid overlap pairs (hybrid worlds, else None)."""
+    n_cells = ((0 if world.mesh is None else world.mesh.n_tets)
+               + (0 if world.grid is None else world.grid.n_voxels))
+    settings.check_tally_size(n_cells)
+    arrays = world_arrays(world, lambda rho, region: assign_materials(rho, region, plan))
+    grid = world.grid
+    to_frame = None
+    if grid is not None:
+        def to_frame(a: FloatArray, is_dir: bool) -> FloatArray:
+            return a @ grid.direction if is_dir else grid.to_grid_frame(a)
+    n_tets = 0 if world.mesh is None else world.mesh.n_tets
+    job = TransportJob(world.kind, arrays.geometry, arrays.material_names,
+                       source_arrays(plan, settings, to_frame), arrays.mass_g, arrays.order,
+                       n_tets, grid)
+    return job, arrays.on_grid
+
+
+def cross_sections(job: TransportJob, settings: TransportSettings) -> CrossSections:
+    """Read-only tables for ``job``, cached by name: runs with the same materials and cut-off
+    (breathing phases, mesh and voxel engine) share one build."""
+    return build_cross_sections(job.names, e_min_mev=min(0.01, settings.energy_cutoff_mev),
+                                e_max_mev=E_MAX_MEV)
+
+
+def run_batches(job: TransportJob, xs: CrossSections, settings: TransportSettings,
+                b_start: int, b_stop: int) -> Rows:
+    """Rows ``b_start … b_stop−1`` of (energy [MeV], ledger [MeV], counters), kernel cell order."""
+    n = b_stop - b_start
+    energy = np.zeros((n, len(job.mass_g)))
+    ledger = np.zeros((n, N_LEDGER))
+    counts = np.zeros((n, N_COUNTS), dtype=np.int64)
+    run_world(*job.geom, xs, job.src, settings.seed, settings.stream, settings.n_histories,
+              settings.n_batches, b_start, b_stop, settings.energy_cutoff_mev,
+              settings.estimator == "track_length", energy, ledger, counts)
+    return energy, ledger, counts
+
+
+def preflight(job: TransportJob, xs: CrossSections, settings: TransportSettings,
+              workers: int) -> float:
+    """Run the first :data:`PILOT_HISTORIES` histories (the run's own streams, discarded): refuse
+    beams that reach neither the mesh nor the CT, and warn when the whole run is estimated to
+    take longer than :data:`LONG_RUN_S` on ``workers`` parallel workers (refuse it beyond
+    :data:`MAX_RUN_S`). Returns the estimate [s].
+    """
+    n = min(settings.n_histories, PILOT_HISTORIES)
+    pilot = replace(settings, n_histories=n, n_batches=2)
+    run_batches(job, xs, replace(pilot, n_histories=2), 0, 2)  # compile / load, not timed
+    t0 = time.perf_counter()
+    _, _, counts = run_batches(job, xs, pilot, 0, 2)
+    seconds = time.perf_counter() - t0
+    if counts[:, C_MISSED].sum() == n:
+        raise PlanError(f"none of the first {n} source photons reaches the {job.kind} world: "
+                        "the beams miss it; check the beams' position_mm / direction / "
+                        "isocentre against the mesh and CT coordinates (mm, patient frame)")
+    estimate = seconds / n * settings.n_histories / max(workers, 1)
+    if estimate > MAX_RUN_S:
+        raise PlanError(f"{settings.n_histories:.3g} histories would take about "
+                        f"{_duration(estimate)} here ({seconds / n * 1e6:.0f} µs per history on "
+                        f"{max(workers, 1)} worker(s)); give fewer --histories, or spread them "
+                        "over more workers (--dask)")
+    if estimate > LONG_RUN_S:
+        warnings.warn(f"{settings.n_histories:.3g} histories will take about "
+                      f"{_duration(estimate)} here ({seconds / n * 1e6:.0f} µs per history on "
+                      f"{max(workers, 1)} worker(s)); fewer histories finish sooner",
+                      stacklevel=4)
+    return estimate
+
+
+def _duration(seconds: float) -> str:
+    for unit, size in (("days", 86400.0), ("h", 3600.0), ("min", 60.0)):
+        if seconds >= size:
+            return f"{seconds / size:.3g} {unit}"
+    return f"{seconds:.0f} s"
+
+
+def execute(job: TransportJob, on_grid: MeshOnGrid | None, plan: Plan,
+            settings: TransportSettings, progress: bool | None) -> DoseResult:
+    """Check the beams reach the world and estimate the time (:func:`preflight`), run all
+    batches here in groups (so the progress bar moves) and assemble the result."""
+    xs = cross_sections(job, settings)
+    preflight(job, xs, settings, numba.get_num_threads())
+    nb = settings.n_batches
+    group = BATCH_GROUP_PER_THREAD * max(1, numba.get_num_threads())
+    rows = []
+    t0, cpu0 = time.perf_counter(), time.process_time()
+    with tqdm(total=nb, unit="batch", disable=None if progress is None else not progress,
+              desc=f"{job.kind} transport", delay=PROGRESS_DELAY_S) as bar:
+        for b0 in range(0, nb, group):
+            b1 = min(nb, b0 + group)
+            rows.append(run_batches(job, xs, settings, b0, b1))
+            bar.update(b1 - b0)
+    return assemble(job, on_grid, plan, settings, rows, time.perf_counter() - t0,
+                    {"cpu_s": time.process_time() - cpu0})
+
+
+def assemble(job: TransportJob, on_grid: MeshOnGrid | None, plan: Plan,
+             settings: TransportSettings, rows: list[Rows], wall_s: float,
+             extra: dict[str, object] | None = None) -> DoseResult:
+    """DoseResult from batch rows in batch order (tets moved back to mesh order)."""
+    energy = np.concatenate([r[0] for r in rows])
+    if job.order is not None:
+        energy[:, job.order] = energy[:, :job.n_tets].copy()
+    ledger = np.concatenate([r[1] for r in rows])
+    counts = np.concatenate([r[2] for r in rows])
+    nb = settings.n_batches
+    per_batch = np.diff(np.arange(nb + 1) * settings.n_histories // nb)
+    result = DoseResult(energy, per_batch, job.mass_g, ledger, counts, plan.particles,
+                        settings.seed, settings.estimator, job.kind, wall_s, __version__,
+                        job.grid, {"materials": job.names, "n_cells": len(job.mass_g),
+                                   **(extra or {})},
+                        n_tets=job.n_tets, on_grid=on_grid)
+    if not np.any(energy):
+        warnings.warn("the dose is zero everywhere: no photon interacted in the world (is it "
+                      "vacuum, or do the beams only graze it?)", stacklevel=3)
+    if result.lost_photons > 1e-4 * settings.n_histories:
+        warnings.warn(f"{result.lost_photons} photons were lost in the geometry "
+                      f"({result.relocations} relocations); check the mesh", stacklevel=3)
+    return result
