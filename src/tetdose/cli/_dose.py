@@ -25,7 +25,7 @@ from tetdose.cli._common import (
     int_at_least,
     read_mapped_mesh,
 )
-from tetdose.errors import PlanError
+from tetdose.errors import OptionError, PlanError
 from tetdose.transport.run.settings import ESTIMATORS
 
 MESH_SUFFIXES = (".vtu", ".vtk", ".xdmf", ".msh")
@@ -51,6 +51,32 @@ def add_args(parser: argparse.ArgumentParser) -> None:
                         help="dose.vtu (with --mesh, also with --ct) or dose.nrrd / .mha / "
                              ".nii.gz (--ct alone)")
     add_dask_arg(parser)
+    add_engine_args(parser)
+
+
+#: Transport engines of ``--engine``.
+ENGINES = ("tetdose", "ompmc")
+
+
+def add_engine_args(parser: argparse.ArgumentParser) -> None:
+    """``--engine`` and the ompmc options (shared with ``dose4d``)."""
+    parser.add_argument("--engine", choices=ENGINES, default="tetdose",
+                        help="transport engine: tetdose's own, or ompmc (EGSnrc coupled "
+                             "photon-electron physics on the CT's voxels; needs tetdose[ompmc] "
+                             "and a CT; a mesh gets the voxel dose by energy)")
+    parser.add_argument("--ompmc-pegs", default="521icru", metavar="521icru|700icru|FILE",
+                        help="ompmc's PEGS4 media data (521icru: 10 keV electron cut-off)")
+    parser.add_argument("--ompmc-split", type=int_at_least(1), default=20,
+                        help="ompmc photon splitting factor (1 = none)")
+
+
+def ompmc_options(args: argparse.Namespace) -> Any:  # noqa: ANN401
+    """The :class:`tetdose.coupling.ompmc.OmpmcOptions` of the command line."""
+    from tetdose.coupling.ompmc import OmpmcOptions
+
+    cutoff = getattr(args, "electron_cutoff_mev", None)
+    return OmpmcOptions(pegs=args.ompmc_pegs, n_split=args.ompmc_split,
+                        **({} if cutoff is None else {"electron_cutoff_mev": cutoff}))
 
 
 def add_run_args(parser: argparse.ArgumentParser, per: str = "") -> None:
@@ -145,6 +171,8 @@ def run(args: argparse.Namespace) -> int:
         density = ct.with_array(cal.density(ct.array).astype(np.float64))
         labels = read_image(args.labels) if args.labels else None
         extra.update(ct=str(args.ct), calibration=cal.name)
+    if args.engine == "ompmc":
+        return _run_ompmc(args, plan, settings, mesh, density, labels, extra, progress)
     world = World(mesh=mesh, density=density, labels=labels)
     plan = plan.resolved(world)
     with dask_context(args.dask) as client:
@@ -170,5 +198,53 @@ def run(args: argparse.Namespace) -> int:
         unit = result.record()["units"]["dose"]
         print(f"dose ({world.kind}): {result.n_histories} histories in {result.wall_s:.1f} s; "
               f"max {result.dose_gy.max():.4g} {unit}; deposited {led['deposited_mev']:.4g} MeV and "
+              f"escaped {led['escaped_mev']:.4g} MeV per particle → {', '.join(outputs)}, {path}")
+    return 0
+
+
+def _run_ompmc(args: argparse.Namespace, plan: Any, settings: Any, mesh: Any, density: Any,
+               labels: Any, extra: dict[str, object], progress: bool | None) -> int:  # noqa: ANN401
+    """``--engine ompmc``: the dose on the CT's voxels by ompmc; with ``--mesh`` put on the tets
+    by energy (:mod:`tetdose.coupling.onto_mesh`), ``dose.vtu`` beside ``dose.nrrd``."""
+    from dataclasses import replace
+
+    from tetdose.core.io import write_mesh
+    from tetdose.coupling.ompmc import simulate_ompmc
+    from tetdose.coupling.onto_mesh import result_onto_mesh
+    from tetdose.dose.absolute import absolute_result
+    from tetdose.transport import World
+
+    if density is None:
+        raise OptionError("--engine ompmc transports on voxels: give --ct (with --mesh too, the "
+                          "dose is put on the tets)")
+    if args.dask is not None:
+        raise OptionError("--dask spreads tetdose's engine; ompmc runs here on OpenMP threads: "
+                          "drop --dask")
+    plan = plan.resolved(World(mesh=mesh, density=density, labels=labels))
+    voxel = simulate_ompmc(density, plan, settings, labels=labels, options=ompmc_options(args),
+                           progress=progress)
+    main = voxel if mesh is None else result_onto_mesh(voxel, density, mesh)
+    on_mesh = mesh is not None and mesh.region is not None
+    scaled = absolute_result(main, plan, mesh if on_mesh else density,
+                             None if on_mesh else labels)
+    added = {k: v for k, v in scaled.extra.items() if main.extra.get(k) is not v}
+    voxel = replace(voxel.with_extra(**added),
+                    particles=voxel.particles * scaled.particles / main.particles)
+    outputs: list[str] = []
+    if mesh is not None:
+        write_mesh(args.output, scaled.to_mesh(mesh))
+        outputs.append(str(args.output))
+        extra["mesh"] = str(args.mesh)
+    image_out = _sibling(args.output, ext="nrrd") if mesh is not None else args.output
+    outputs += _write_images(voxel, image_out)
+    world = "voxel (ompmc)" if mesh is None else "mesh (ompmc voxel energy on the tets)"
+    result = (scaled if mesh is not None else voxel).with_extra(**extra, world=world,
+                                                                outputs=outputs)
+    path = result.save_json(record_path(args.output))
+    if not args.quiet:
+        led = result.ledger
+        unit = result.record()["units"]["dose"]
+        print(f"dose ({world}): {result.n_histories} histories in {result.wall_s:.1f} s; max "
+              f"{result.dose_gy.max():.4g} {unit}; deposited {led['deposited_mev']:.4g} MeV and "
               f"escaped {led['escaped_mev']:.4g} MeV per particle → {', '.join(outputs)}, {path}")
     return 0

@@ -6,7 +6,13 @@ import argparse
 from pathlib import Path
 
 from tetdose.cli._common import add_calibration_arg, calibration_from, check_output, int_at_least
-from tetdose.cli._dose import add_dask_arg, add_run_args, dask_context
+from tetdose.cli._dose import (
+    add_dask_arg,
+    add_engine_args,
+    add_run_args,
+    dask_context,
+    ompmc_options,
+)
 from tetdose.core.io import read_ct
 from tetdose.dose.dose4d import run_dose4d, write_dose4d
 from tetdose.errors import OptionError
@@ -38,6 +44,7 @@ def add_args(p: argparse.ArgumentParser) -> None:
     add_dask_arg(p)
     p.add_argument("--batches-per-task", type=int_at_least(1), default=1,
                    help="with --dask: batches per dask task (default 1)")
+    add_engine_args(p)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -57,10 +64,22 @@ def run(args: argparse.Namespace) -> int:
     if args.ct4d:
         ct4d = read_4dct(args.ct4d[0] if len(args.ct4d) == 1 else args.ct4d)
         phase_ct = [ct4d[find_phase(ct4d, float(pct))].image for pct in series.phase_percent]
+    engine = None
+    if args.engine == "ompmc":
+        from tetdose.coupling.ompmc import phase_engine
+
+        if args.dask is not None:
+            raise OptionError("--dask spreads tetdose's engine; ompmc runs here on OpenMP "
+                              "threads: drop --dask")
+        if ct is None and phase_ct is None:
+            raise OptionError("--engine ompmc runs on each phase's CT: give --like (the "
+                              "reference CT, virtual phase CTs) or --ct4d (the real ones)")
+        engine = phase_engine(ompmc_options(args), progress=False if args.quiet else None)
     with dask_context(args.dask) as client:
         result = run_dose4d(series, plan, settings, ct_hu=ct, calibration=calibration_from(args),
                             phase_ct=phase_ct, dvfs=dvfs, progress=not args.quiet,
-                            client=client, batches_per_task=args.batches_per_task)
+                            client=client, batches_per_task=args.batches_per_task,
+                            voxel_engine=engine)
     write_dose4d(result, args.output)
     unit = result.summary()["units"]["dose"]
     if unit == PER_PHOTON_UNIT and plan.particles != 1.0:

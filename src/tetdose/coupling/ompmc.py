@@ -58,7 +58,7 @@ import re
 import sys
 import tempfile
 import time
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
@@ -513,3 +513,17 @@ def ray_hits_box(position: FloatArray, direction: FloatArray, lo: FloatArray, hi
     t_hi = np.where(direction == 0.0, np.where(inside, np.inf, -np.inf), np.maximum(t1, t2))
     enter = np.maximum(t_lo.max(axis=1), 0.0)
     return enter < t_hi.min(axis=1)
+
+
+def phase_engine(options: OmpmcOptions | None = None, progress: bool | None = None
+                 ) -> Callable[[Image, TetMesh, Plan, TransportSettings],
+                               tuple[DoseResult, DoseResult]]:
+    """ompmc as the voxel engine of :func:`tetdose.dose.dose4d.run_dose4d`: each phase's body
+    CT [g/cm³] through :func:`simulate_ompmc`, its voxel energy put on the phase mesh by
+    :func:`tetdose.coupling.onto_mesh.result_onto_mesh`; returns (mesh result, voxel result)."""
+    def run(density: Image, mesh: TetMesh, plan: Plan, settings: TransportSettings
+            ) -> tuple[DoseResult, DoseResult]:
+        voxel = simulate_ompmc(density, plan, settings, options=options, progress=progress)
+        return result_onto_mesh(voxel, density, mesh), voxel
+
+    return run

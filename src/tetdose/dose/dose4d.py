@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import json
 import os
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -52,6 +53,10 @@ from tetdose.motion.dvf import DisplacementField
 from tetdose.motion.phases import PhaseSeries
 from tetdose.transport import DoseResult, Plan, TransportSettings, World
 from tetdose.transport.run.distributed import simulate_on
+
+#: A voxel transport engine for :func:`run_dose4d`: (phase density [g/cm³], phase mesh, plan,
+#: settings) → (mesh result, voxel result).
+VoxelEngine = Callable[[Image, TetMesh, Plan, TransportSettings], tuple[DoseResult, DoseResult]]
 
 
 @dataclass(frozen=True, eq=False)
@@ -119,7 +124,8 @@ def run_dose4d(series: PhaseSeries, plan: Plan, settings: TransportSettings, *,
                ct_hu: Image | None = None, calibration: HUCalibration | None = None,
                phase_density: list[Image] | None = None, phase_ct: list[Image] | None = None,
                dvfs: list[DisplacementField] | None = None, progress: bool = False,
-               client: Any = None, batches_per_task: int = 1) -> Dose4D:  # noqa: ANN401
+               client: Any = None, batches_per_task: int = 1,  # noqa: ANN401
+               voxel_engine: VoxelEngine | None = None) -> Dose4D:
     """Transport ``plan`` on every phase of ``series`` (which must carry densities).
 
     With ``ct_hu`` every phase runs in the hybrid world — the phase mesh inside the phase's body
@@ -131,6 +137,11 @@ def run_dose4d(series: PhaseSeries, plan: Plan, settings: TransportSettings, *,
     (``batches_per_task`` per task) of both geometries are spread over the cluster at once
     (:func:`tetdose.transport.run.distributed.simulate_distributed`); the doses are bitwise those of
     the local run.
+
+    ``voxel_engine`` (e.g. :func:`tetdose.coupling.ompmc.phase_engine`) replaces tetdose's
+    transport: it runs on each phase's body CT (``ct_hu`` or ``phase_ct`` required) and returns
+    (the phase's mesh result, its voxel result) — the voxel dose put on the tets by energy — which
+    are accumulated as tetdose's own (the voxel way too; there is no hybrid body part).
     """
     if series.density_g_cm3 is None:
         raise MeshError("the phases carry no density; run the density update first "
@@ -146,6 +157,8 @@ def run_dose4d(series: PhaseSeries, plan: Plan, settings: TransportSettings, *,
                              "per phase")
         for img in density[1:]:
             density[0].grid.require_same(img.grid, "the phase CTs")
+    if voxel_engine is not None:
+        return _with_engine(series, plan, settings, meshes, density, voxel_engine)
     worlds = [World(mesh=m, density=None if density is None else density[k])
               for k, m in enumerate(meshes)]
     geoms: list[World | TetMesh | Image] = [*worlds, *(density or [])]
@@ -162,6 +175,23 @@ def run_dose4d(series: PhaseSeries, plan: Plan, settings: TransportSettings, *,
         body = _body_way(series, accumulated, results[:n])
     # Prescription (tetdose.plan.prescription): one scale for every phase and accumulation.
     return absolute_dose4d(Dose4D(series, results[:n], accumulated, voxel, body), plan)
+
+
+def _with_engine(series: PhaseSeries, plan: Plan, settings: TransportSettings,
+                 meshes: list[TetMesh], density: list[Image] | None,
+                 engine: VoxelEngine) -> Dose4D:
+    """Every phase's body CT through ``engine`` (stream k for phase k), accumulated."""
+    if density is None:
+        raise ImageError("the voxel engine runs on each phase's CT: give the reference CT "
+                         "(--like) or the phase CTs (--ct4d)")
+    pairs = [engine(density[k], m, plan, replace(settings, stream=k))
+             for k, m in enumerate(meshes)]
+    results = [p[0] for p in pairs]
+    accumulated = accumulate_meshes(meshes, [r.dose_gy for r in results],
+                                    weights=series.time_weight,
+                                    dose_std_gy=[r.dose_std_gy for r in results])
+    voxel = _voxel_way(series, density, [p[1] for p in pairs])
+    return absolute_dose4d(Dose4D(series, results, accumulated, voxel, None), plan)
 
 
 def _bodies(series: PhaseSeries, ct_hu: Image | None, phase_ct: list[Image] | None,
