@@ -42,6 +42,9 @@ def add_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--rtplan", type=Path,
                         help="DICOM RT Plan: its photon beams are added to --plan's (or used "
                              "alone)")
+    parser.add_argument("--fraction-group", type=int_at_least(1), metavar="N",
+                        help="the --rtplan fraction group to compute (FractionGroupNumber); "
+                             "needed when the RT Plan has several")
     add_run_args(parser)
     parser.add_argument("--cutoff-mev", type=float_in(0.0, 20.0, low_open=True), default=0.01,
                         help="photon energy cut-off, deposited locally [MeV]")
@@ -82,15 +85,17 @@ def dask_context(spec: str | None) -> Any:  # noqa: ANN401 - context manager
     return dask_client(spec)
 
 
-def load_plan(plan_toml: Path | None, rtplan: Path | None) -> Any:  # noqa: ANN401
-    """``--plan`` and/or ``--rtplan``: the RT Plan's beams join the plan.toml's."""
+def load_plan(plan_toml: Path | None, rtplan: Path | None,
+              fraction_group: int | None = None) -> Any:  # noqa: ANN401
+    """``--plan`` and/or ``--rtplan`` (its ``--fraction-group``): the RT Plan's beams join the
+    plan.toml's."""
     from tetdose.transport import Plan
 
     if plan_toml is None and rtplan is None:
         raise PlanError("give --plan plan.toml, --rtplan plan.dcm, or both")
     if plan_toml is None:
-        return Plan.from_rt_plan(rtplan)
-    return Plan.from_toml(plan_toml, rtplan=rtplan)
+        return Plan.from_rt_plan(rtplan, fraction_group)
+    return Plan.from_toml(plan_toml, rtplan=rtplan, fraction_group=fraction_group)
 
 
 def record_path(output: Path) -> Path:
@@ -131,7 +136,7 @@ def run(args: argparse.Namespace) -> int:
         raise PlanError(f"with --ct alone the output must be an image (.nrrd), got {args.output}")
     if args.labels is not None and args.ct is None:
         raise PlanError("--labels labels the CT's voxels; give --ct too")
-    plan = load_plan(args.plan, args.rtplan)
+    plan = load_plan(args.plan, args.rtplan, args.fraction_group)
     settings = TransportSettings(int(args.histories), args.batches, args.seed,
                                  args.cutoff_mev, args.estimator)
     progress = False if args.quiet else None
