@@ -6,11 +6,12 @@ import json
 import numpy as np
 import pytest
 
-from helpers import box_mesh
-from tetdose.compare.report import dose_slices_figure, dvh_figure, write_report
 from tetdose.compare.dvh import dvh
+from tetdose.compare.report import dose_slices_figure, dvh_figure, write_report
 from tetdose.compare.slices import SliceFrame, plane_section, region_faces
 from tetdose.core.image import Image, ImageGrid
+
+from helpers import box_mesh
 
 
 def _length(segments):
