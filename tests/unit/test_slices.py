@@ -41,9 +41,9 @@ def test_region_surface_includes_the_interface():
     assert _length(seg) == pytest.approx(2 * (2 + 4), rel=1e-9)  # a 2 × 4 rectangle
 
 
-def _dose_image(direction=np.eye(3)):
+def _dose_image(direction=None):
     grid = ImageGrid(origin_mm=[-10.0, -20.0, 0.0], spacing_mm=[1.0, 2.0, 1.0],
-                     direction=direction, size=(21, 21, 5))
+                     direction=np.eye(3) if direction is None else direction, size=(21, 21, 5))
     z, y, x = np.meshgrid(np.arange(5), np.arange(21), np.arange(21), indexing="ij")
     return Image(np.exp(-((x - 10) ** 2 + (y - 10) ** 2) / 40.0) * 2.0, grid)
 
