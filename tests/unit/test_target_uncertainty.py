@@ -7,11 +7,12 @@ import numba
 import numpy as np
 import pytest
 
-from helpers import density_image, grid_for
 from tetdose.cli._dose import relative_uncertainty
 from tetdose.errors import PlanError
 from tetdose.transport import PhotonSource, Plan, TransportSettings, World, simulate
 from tetdose.transport.run.job import region_uncertainty
+
+from helpers import density_image, grid_for
 
 
 def _world_and_plan():
