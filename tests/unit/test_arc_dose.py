@@ -4,6 +4,7 @@ circle the mirrored dose, and a sliding-window sweep equals step-and-shoot of it
 apertures (issue 22). The full-size versions with γ are in tests/verification/test_arc_dose.py."""
 
 import pytest
+
 from arc_dose import compare, dose, linac, sliding_window, statics, water_cylinder
 
 N = 200_000

@@ -6,11 +6,11 @@ Plan equals a fine step-and-shoot of its control points interpolated in Python (
 
 import numpy as np
 import pytest
-from arc_dose import compare, dose, gamma_pass, linac, sliding_window, statics, water_cylinder
-from vmat_plan import write_vmat_plan
 
+from arc_dose import compare, dose, gamma_pass, linac, sliding_window, statics, water_cylinder
 from tetdose.plan import Plan
 from tetdose.transport import TransportSettings, simulate
+from vmat_plan import write_vmat_plan
 
 pytestmark = pytest.mark.slow
 
