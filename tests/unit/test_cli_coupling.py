@@ -41,6 +41,7 @@ def d(tmp_path_factory) -> Path:
     small = grid_for([-4, -8, -6], [10, 8, 8], [2.0, 2.0, 2.0])
     write_3ddose(d / "small.3ddose", Image(np.ones(small.shape), small))
     write_image(d / "v0.nrrd", Image(np.ones(grid.shape), grid))
+    write_image(d / "ct.nrrd", Image(np.full(grid.shape, 40, np.int16), grid))  # HU
     (d / "dose.xyz").write_text("1 2 3\n")
     (d / "folder").mkdir()
     for k in range(2):
@@ -90,6 +91,12 @@ def test_import_tallies_accumulates_and_compare_reads_it(d, tmp_path, capsys):
                  "{d}/v1.3ddose", "-o", "{o}/vox"], d, tmp_path) == 0
     voxel = tmp_path / "vox" / "voxel"
     assert (voxel / "accumulated_direct_mapping.nrrd").exists()
+    assert _run(["import-dose", "-q", "--phases", "{d}/phases", "--dose", "{d}/v0.3ddose",
+                 "{d}/v1.3ddose", "--ct", "{d}/ct.nrrd", "{d}/ct.nrrd", "-o", "{o}/vct"],
+                d, tmp_path) == 0  # the phases' CTs as the voxel densities
+    with_ct = meshio.read(tmp_path / "vct" / "accumulated.vtu").cell_data["dose"][0]
+    default = meshio.read(tmp_path / "vox" / "accumulated.vtu").cell_data["dose"][0]
+    assert np.all(np.isfinite(with_ct)) and not np.allclose(with_ct, default)
     assert _run(["compare", "-q", "--mesh-dose", "{o}/vox", "--voxel-dose",
                  str(voxel / "accumulated_energy_mass_transfer.nrrd"), "-o", "{o}/cmp"],
                 d, tmp_path) == 0

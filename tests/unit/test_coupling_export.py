@@ -16,6 +16,7 @@ from tetdose.core.io import read_mesh
 from tetdose.core.mass import tet_mass_g
 from tetdose.coupling.abaqus import read_abaqus, write_abaqus
 from tetdose.coupling.binning import bin_densities
+from tetdose.coupling.export import conforming_geometry
 from tetdose.coupling.tetgen import write_tetgen
 from tetdose.errors import OptionError
 from tetdose.transport.physics.materials import MATERIALS, material_for_density
@@ -149,6 +150,9 @@ def test_icrp145_phantom_reads_as_a_mesh_with_the_binned_masses(mesh, tmp_path):
         via_io = read_mesh(path)  # the read_mesh dispatch: cm → mm, densities per material
         np.testing.assert_allclose(tet_mass_g(via_io), b.binned_mass_g, rtol=1e-9)
         np.testing.assert_allclose(via_io.volumes_mm3.sum(), mesh.volumes_mm3.sum(), rtol=1e-9)
+    points, tets = conforming_geometry(read)  # its region copies join again for an export
+    np.testing.assert_allclose(points, mesh.points_mm, rtol=1e-11, atol=1e-11)
+    np.testing.assert_array_equal(tets, mesh.tets)
 
 
 def _abaqus_reader(path):

@@ -8,8 +8,11 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from tetdose.cli._common import check_output
-from tetdose.core.io import read_image
+import numpy as np
+
+from tetdose.cli._common import add_calibration_arg, calibration_from, check_output
+from tetdose.core.image import Image
+from tetdose.core.io import read_ct, read_image
 from tetdose.coupling.dose_files import KINDS, dose_kind
 from tetdose.coupling.export import exported_densities
 from tetdose.coupling.import_dose import DEFAULT_UNIT, import_doses, write_imported
@@ -27,9 +30,14 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--exported", type=Path,
                    help="the `tetdose export-phases` folder the code ran on: per-tet doses [Gy] "
                         "are turned into energy with its binned masses")
-    p.add_argument("--density", type=Path, nargs="+", metavar="IMAGE",
-                   help="voxel doses: the density [g/cm³] image each phase's dose was computed "
-                        "on (default: the phase mesh voxelized on the dose grid)")
+    body = p.add_mutually_exclusive_group()
+    body.add_argument("--density", type=Path, nargs="+", metavar="IMAGE",
+                      help="voxel doses: the density [g/cm³] image each phase's dose was "
+                           "computed on (default: the phase mesh voxelized on the dose grid)")
+    body.add_argument("--ct", type=Path, nargs="+", metavar="CT",
+                      help="voxel doses: each phase's CT [HU] the dose was computed on (e.g. "
+                           "the `tetdose 4dct` phases), turned into density by --calibration")
+    add_calibration_arg(p)
     p.add_argument("--unit", default=DEFAULT_UNIT,
                    help=f"what the imported doses are (default {DEFAULT_UNIT!r})")
     p.add_argument("-o", "--output", type=Path, required=True, help="output folder")
@@ -59,6 +67,10 @@ def run(args: argparse.Namespace) -> int:
                           "phase, in phase order")
     kinds = [dose_kind(f) for f in files]
     densities = [read_image(f) for f in args.density] if args.density else None
+    if args.ct:
+        cal = calibration_from(args)
+        densities = [Image(cal.density(ct.array).astype(np.float64), ct.grid)
+                     for ct in map(read_ct, args.ct)]
     binned = (exported_densities(args.exported, series.reference.n_tets)
               if args.exported else None)
     result = import_doses(series, files, densities=densities, binned_densities=binned,

@@ -28,8 +28,9 @@ from pathlib import Path
 import numpy as np
 
 from tetdose._atomic import atomic_write_dir
-from tetdose._typing import FloatArray
+from tetdose._typing import FloatArray, IntArray
 from tetdose.core.icrp145 import read_material_file, read_tetgen
+from tetdose.core.mesh import COINCIDENT_TOL_MM, PARENT_POINT, TetMesh
 from tetdose.coupling.abaqus import read_abaqus, write_abaqus
 from tetdose.coupling.binning import DEFAULT_MAX_MASS_ERROR, bin_densities
 from tetdose.coupling.tetgen import write_material_file, write_tetgen
@@ -44,6 +45,25 @@ RECORD = "export.json"
 def phase_stem(percent: float) -> str:
     """File stem of a phase, as ``tetdose dose4d`` names its phase outputs."""
     return f"phase_{percent:05.1f}"
+
+
+def conforming_geometry(mesh: TetMesh) -> tuple[FloatArray, IntArray]:
+    """(points [mm], tets) with a region-split mesh's vertex copies joined again.
+
+    A mesh split by region (:meth:`TetMesh.split_by_region`, point_data ``parent_point``) holds
+    one copy of an interface vertex per region, for its density jump; the exported files carry
+    one density per tet, so the copies are merged back (when they coincide) and the elements
+    share their faces, as MCNP's element-to-element tracking needs.
+    """
+    parent = mesh.point_data.get(PARENT_POINT)
+    if parent is None:
+        return mesh.points_mm, mesh.tets
+    ids, first, inverse = np.unique(np.asarray(parent, dtype=np.int64), return_index=True,
+                                    return_inverse=True)
+    points = mesh.points_mm[first]
+    if np.abs(mesh.points_mm - points[inverse.reshape(-1)]).max() > COINCIDENT_TOL_MM:
+        return mesh.points_mm, mesh.tets  # the copies moved apart: keep them apart
+    return points, inverse.reshape(-1)[mesh.tets]
 
 
 def export_phases(series: PhaseSeries, out_dir: str | os.PathLike[str], *, fmt: str = "tetgen",
@@ -69,13 +89,12 @@ def export_phases(series: PhaseSeries, out_dir: str | os.PathLike[str], *, fmt: 
     with atomic_write_dir(Path(out_dir)) as tmp:
         for k, b in enumerate(binned):
             stem = phase_stem(float(series.phase_percent[k]))
-            mesh = series.mesh(k)
+            points, tets = conforming_geometry(series.mesh(k))
             if fmt == "tetgen":
-                paths = write_tetgen(tmp / stem, mesh.points_mm, mesh.tets, b.material_id,
-                                     b.materials)
+                paths = write_tetgen(tmp / stem, points, tets, b.material_id, b.materials)
             else:
-                paths = [write_abaqus(tmp / f"{stem}.inp", mesh.points_mm, mesh.tets,
-                                      b.material_id, b.materials,
+                paths = [write_abaqus(tmp / f"{stem}.inp", points, tets, b.material_id,
+                                      b.materials,
                                       title=f"tetdose {stem} ({series.phase_percent[k]:g} %)"),
                          write_material_file(tmp / f"{stem}.material", b.materials)]
             phases.append(
