@@ -90,8 +90,7 @@ def test_distinct_densities_get_exact_bins_and_regions_take_plan_materials():
 
 def _tetgen_reader(stem):
     """TetGen: '<n> <dim> <attrs> <markers>' then '<id> x y z', '<n> <4> <attrs>' then
-    '<id> a b c d [attr]' ('#' comments); ICRP 145 material file: 'C name rho g/cm3', 'mID'
-    then (ZAID, −fraction) pairs, parsed token by token as Geant4's TETModelImport does."""
+    '<id> a b c d [attr]' ('#' comments); the material file as Geant4 reads it."""
     def rows(path):
         return [ln.split("#")[0].split() for ln in open(path) if ln.split("#")[0].strip()]
     node, ele = rows(f"{stem}.node"), rows(f"{stem}.ele")
@@ -103,18 +102,38 @@ def _tetgen_reader(stem):
     assert ele[0][1:] == ["4", "1"]
     tets = np.array([[int(v) for v in r[1:5]] for r in ele[1:m + 1]]) - ids[0]
     mat = np.array([int(r[5]) for r in ele[1:m + 1]])
-    tok = open(f"{stem}.material").read().split()
-    materials, i = {}, 0
-    while i < len(tok):
-        assert tok[i] == "C" and tok[i + 3] == "g/cm3" and tok[i + 4][0] == "m"
-        name, rho, mid = tok[i + 1], float(tok[i + 2]), int(tok[i + 4][1:])
-        i += 5
-        fr = {}
-        while i < len(tok) and tok[i] != "C":
-            fr[int(tok[i]) // 1000] = -float(tok[i + 1])
-            i += 2
-        materials[mid] = (name, rho, fr)
+    materials = _geant4_material_read(open(f"{stem}.material").read())
     return pts, tets, mat, materials, ids
+
+
+def _geant4_material_read(text):
+    """Geant4's TETModelImport::MaterialRead, token by token (ICRP145_HumanPhantoms): read
+    'C', name, density, 'g/cm3', 'mID'; then (ZAID, -fraction) pairs until a token 'C' (which it
+    consumes) or the end of the file; repeat while not at the end."""
+    tokens, pos, eof = text.split(), 0, False
+
+    def read():
+        nonlocal pos, eof
+        if pos >= len(tokens):
+            eof = True
+            return ""
+        pos += 1
+        return tokens[pos - 1]
+
+    materials = {}
+    while not eof:
+        read()
+        name, rho = read(), float(read())
+        read()
+        mid = int(read().lstrip("m"))
+        fractions = {}
+        while True:
+            t = read()
+            if t == "C" or eof:
+                break
+            fractions[int(t) // 1000] = -float(read())
+        materials[mid] = (name, rho, fractions)
+    return materials
 
 
 def test_tetgen_files_read_back_by_meshio_and_an_independent_reader(mesh, tmp_path):
@@ -126,6 +145,7 @@ def test_tetgen_files_read_back_by_meshio_and_an_independent_reader(mesh, tmp_pa
     np.testing.assert_allclose(pts * 10.0, mesh.points_mm, rtol=1e-9, atol=1e-9)  # cm
     np.testing.assert_array_equal(tets, mesh.tets)
     np.testing.assert_array_equal(mat, b.material_id)
+    assert sorted(materials) == [m.id for m in b.materials]
     for m in b.materials:
         name, rho, fr = materials[m.id]
         assert name == m.name and rho == m.density_g_cm3

@@ -15,7 +15,9 @@ conversion, by PHITS and MCNP6:
 ``STEM.material`` (MCNP material cards with a comment line per material)
     for each material: ``C <name> <density> g/cm3`` then ``m<id>`` followed by pairs
     ``<ZZZ000> -<mass fraction>`` (MCNP ZAID of the natural element and a negative number for a
-    mass fraction), as Geant4's ``TETModelImport::MaterialRead`` parses them token by token.
+    mass fraction), as Geant4's ``TETModelImport::MaterialRead`` parses them token by token —
+    it ends a material's pairs at a token ``C`` and consumes it, so consecutive materials are
+    separated by a lone ``C`` line (read here with or without it).
 
 '#' starts a comment in TetGen files (the format allows it; Geant4's reader does not, so
 :mod:`tetdose.coupling.tetgen` never writes one). A tetdose mesh read from such a phantom keeps
@@ -137,6 +139,9 @@ def read_material_file(path: str | os.PathLike[str]) -> dict[int, PhantomMateria
     i = 0
     try:
         while i < len(tokens):
+            if tokens[i].upper() == "C" and i + 1 < len(tokens) and tokens[i + 1].upper() == "C":
+                i += 1  # a lone "C" line between materials
+                continue
             if tokens[i].upper() != "C" or not tokens[i + 4].lower().startswith("m"):
                 raise ValueError(f"expected 'C NAME DENSITY g/cm3 mID' at token {i + 1}")
             name, rho, mat_id = tokens[i + 1], float(tokens[i + 2]), int(tokens[i + 4][1:])

@@ -11,7 +11,8 @@ The layout is that of the ICRP Publication 145 mesh phantoms as Geant4's
   node ids directly, so they must start at 0);
 * ``STEM.material``: per material ``C NAME DENSITY g/cm3`` then ``mID ZZZ000 -w`` with one
   element per line (MCNP material-card syntax: mass fractions negative, continuation lines
-  indented by 5 spaces), so the file also pastes into an MCNP or PHITS input.
+  indented by 5 spaces; a lone ``C`` line between materials, see :func:`material_cards`), so
+  the file also pastes into an MCNP or PHITS input.
 
 Vertices keep tetdose's positive orientation (det[b − a, c − a, d − a] > 0).
 """
@@ -48,10 +49,16 @@ COORD_DIGITS = 12
 
 
 def material_cards(materials: Sequence[BinMaterial]) -> str:
-    """The ``.material`` text: ``C NAME DENSITY g/cm3`` and an MCNP ``m`` card per material."""
+    """The ``.material`` text: ``C NAME DENSITY g/cm3`` and an MCNP ``m`` card per material,
+    consecutive materials separated by a line ``C`` alone.
+
+    The separator is what Geant4's token reader needs: it ends a material's element list at
+    the first token ``C`` (consuming it) and then reads ``C NAME DENSITY g/cm3 mID`` — so each
+    further header needs one more ``C`` before it, and none may follow the last material.
+    """
     out = io.StringIO()
-    for m in materials:
-        out.write(f"C {m.name} {m.density_g_cm3!r} g/cm3\n")
+    for k, m in enumerate(materials):
+        out.write(f"{'C' + chr(10) if k else ''}C {m.name} {m.density_g_cm3!r} g/cm3\n")
         mat = MATERIALS[m.composition]
         for i, (z, w) in enumerate(zip(mat.elements, mat.weights, strict=True)):
             lead = f"m{m.id}" if i == 0 else ""
