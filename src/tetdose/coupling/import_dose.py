@@ -152,11 +152,11 @@ def phase_dose(path: str | os.PathLike[str], mesh: TetMesh, *,
     dose, std = read_voxel_dose(path)
     check_dose_values(dose, str(path))
     check_covers(mesh, dose, str(path))
+    overlap = mesh_overlap(mesh, dose.grid)
     if density is None:
-        density = voxelize(mesh, mesh.point_data["density"], dose.grid)
+        density = voxelize(mesh, mesh.point_data["density"], dose.grid, overlap=overlap)
     else:
         dose.grid.require_same(density.grid, f"the dose {path} and its density image")
-    overlap = mesh_overlap(mesh, dose.grid)
     dose_k, _ = voxel_dose_onto_mesh(dose, density, mesh, overlap=overlap)
     std_k = None if std is None else voxel_std_on_mesh(mesh, std, density, overlap)
     return PhaseDose(dose_k, std_k, str(path), kind, dose, density)

@@ -49,22 +49,25 @@ def read_tally_csv(path: str | os.PathLike[str], n_tets: int) -> TetTally:
     path = Path(path)
     if not path.is_file():
         raise DoseError(f"{path} does not exist; give a per-tet tally CSV")
-    rows = [r for r in csv.reader(io.StringIO(path.read_text(errors="replace")))
-            if r and not r[0].lstrip().startswith("#")]
-    if not rows:
+    lines = path.read_text(errors="replace").splitlines()
+    body = [i for i, ln in enumerate(lines) if ln.strip() and not ln.lstrip().startswith("#")]
+    if not body:
         raise DoseError(f"{path} is empty; a tally CSV needs a header and one row per tet")
-    head = [h.strip().lower() for h in rows[0]]
+    header = next(csv.reader([lines[body[0]]]))
+    head = [h.strip().lower() for h in header]
     id_col = [c for c in ID_COLUMNS if c in head]
     q_col = [c for c in QUANTITIES if c in head]
     if len(id_col) != 1 or len(q_col) != 1:
-        raise DoseError(f"{path}: the header {rows[0]} must name one id column (tet: 0-based, or "
+        raise DoseError(f"{path}: the header {header} must name one id column (tet: 0-based, or "
                         "element: 1-based) and one quantity (energy_mev or dose_gy)")
     kind, sigma_name = QUANTITIES[q_col[0]]
     s_col = sigma_name if sigma_name in head else REL_ERR if REL_ERR in head else None
     cols = [head.index(c) for c in (id_col[0], q_col[0], s_col) if c is not None]
     try:
-        table = np.array([[float(r[c]) for c in cols] for r in rows[1:]], dtype=np.float64)
-    except (IndexError, ValueError) as exc:
+        table = np.loadtxt(io.StringIO("\n".join(lines[body[0] + 1:])), delimiter=",",
+                           comments="#", usecols=cols, ndmin=2, dtype=np.float64) \
+            if len(body) > 1 else np.empty((0, len(cols)))
+    except ValueError as exc:
         raise DoseError(f"{path}: a row is short or not numeric ({exc}); fix the file") from None
     if len(table) != n_tets:
         raise DoseError(f"{path} holds {len(table)} tets, the mesh has {n_tets}: the tally "
