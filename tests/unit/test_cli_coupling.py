@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from tetdose.cli import main
+from tetdose.core.icrp145 import read_icrp145
 from tetdose.core.image import Image
 from tetdose.core.io import write_image
 from tetdose.core.mass import tet_mass_g
@@ -34,6 +35,7 @@ def d(tmp_path_factory) -> Path:
     rng = np.random.default_rng(0)
     for k in range(2):
         write_tally_csv(d / f"t{k}.csv", TetTally("energy", rng.gamma(2, 1, m.n_tets), None))
+        write_tally_csv(d / f"g{k}.csv", TetTally("dose", rng.gamma(2, 1, m.n_tets), None))
     write_tally_csv(d / "short.csv", TetTally("energy", np.ones(m.n_tets - 1), None))
     grid = grid_for([-10, -8, -6], [10, 8, 8], [2.0, 2.0, 2.0])
     for k in range(2):
@@ -73,6 +75,19 @@ def test_export_tetgen_and_abaqus_write_every_phase(d, tmp_path, capsys):
         "phase_050.0.material"]
     assert len(meshio.read(tmp_path / "ab" / "phase_000.0.inp").cells_dict["tetra"]) == \
         ref.reference.n_tets
+    # doses [Gy] a code scored on the exported (binned) phases: energy = dose × binned mass
+    for fmt in ("tg", "ab"):
+        assert _run(["import-dose", "-q", "--phases", "{d}/phases", "--dose", "{d}/g0.csv",
+                     "{d}/g1.csv", "--exported", f"{{o}}/{fmt}", "-o", f"{{o}}/imp_{fmt}"],
+                    d, tmp_path) == 0
+    binned = [tet_mass_g(read_icrp145(tmp_path / "tg" / f"phase_{p:05.1f}.node")[0])
+              for p in (0.0, 50.0)]
+    dose = [np.loadtxt(d / f"g{k}.csv", delimiter=",", skiprows=1)[:, 1] for k in range(2)]
+    mass = [tet_mass_g(ref.mesh(k)) for k in range(2)]
+    want = (dose[0] * binned[0] + dose[1] * binned[1]) / (mass[0] + mass[1])
+    got = meshio.read(tmp_path / "imp_tg" / "accumulated.vtu").cell_data["dose"][0]
+    np.testing.assert_allclose(got, want, rtol=1e-9)
+    assert not np.allclose(got, (dose[0] * mass[0] + dose[1] * mass[1]) / (mass[0] + mass[1]))
 
 
 def test_import_tallies_accumulates_and_compare_reads_it(d, tmp_path, capsys):

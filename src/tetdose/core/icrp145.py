@@ -55,15 +55,21 @@ class PhantomMaterial:
 
 
 def stem_of(path: str | os.PathLike[str]) -> Path:
-    """``dir/STEM`` of ``dir/STEM.node``, ``.ele``, ``.material`` or of ``dir/STEM`` itself."""
+    """``dir/STEM`` of ``dir/STEM.node``, ``.ele``, ``.material`` or of ``dir/STEM`` itself (the
+    stem may hold dots: ``phase_050.0.node`` → ``phase_050.0``)."""
     path = Path(path)
     return path.with_suffix("") if path.suffix in (NODE, ELE, MATERIAL) else path
+
+
+def with_ending(stem: Path, ending: str) -> Path:
+    """``dir/STEM`` + ending (``Path.with_suffix`` would replace a dotted stem's last part)."""
+    return stem.with_name(stem.name + ending)
 
 
 def is_icrp145(path: str | os.PathLike[str]) -> bool:
     """True when ``path`` is a ``.node``/``.ele`` file with a ``.material`` file beside it."""
     path = Path(path)
-    return path.suffix in (NODE, ELE) and stem_of(path).with_suffix(MATERIAL).is_file()
+    return path.suffix in (NODE, ELE) and with_ending(stem_of(path), MATERIAL).is_file()
 
 
 def _data_lines(path: Path) -> list[list[str]]:
@@ -105,7 +111,7 @@ def read_tetgen(path: str | os.PathLike[str]) -> tuple[FloatArray, IntArray, Int
     Node ids may start at 0 or 1 (TetGen allows either; the ``.ele`` refers to the same ids).
     """
     stem = stem_of(path)
-    node_path, ele_path = stem.with_suffix(NODE), stem.with_suffix(ELE)
+    node_path, ele_path = with_ending(stem, NODE), with_ending(stem, ELE)
     rows = _data_lines(node_path)
     n, dim, n_attr, n_mark = _header(rows, node_path, 4)
     if dim != 3 or n < 4:
@@ -131,7 +137,7 @@ def read_tetgen(path: str | os.PathLike[str]) -> tuple[FloatArray, IntArray, Int
 
 def read_material_file(path: str | os.PathLike[str]) -> dict[int, PhantomMaterial]:
     """Materials of an ICRP-145 ``.material`` file by id (layout in the module docstring)."""
-    path = stem_of(path).with_suffix(MATERIAL)
+    path = with_ending(stem_of(path), MATERIAL)
     if not path.is_file():
         raise MeshError(f"{path} does not exist; an ICRP-145 phantom needs its material file")
     tokens = path.read_text(errors="replace").split()

@@ -42,7 +42,7 @@ from tetdose._constants import G_PER_KG, J_PER_MEV
 from tetdose._typing import FloatArray
 from tetdose.core.image import Image
 from tetdose.core.io import write_image, write_mesh
-from tetdose.core.mass import tet_mass_g
+from tetdose.core.mass import mass_g, tet_mass_g
 from tetdose.core.mesh import TetMesh
 from tetdose.core.overlap import Overlap
 from tetdose.core.voxelize import voxelize
@@ -94,7 +94,7 @@ class ImportedDose4D:
             "phases": [{"phase_percent": float(self.series.phase_percent[k]),
                         "time_weight": float(self.series.time_weight[k]),
                         "source": p.source, "kind": p.kind,
-                        "energy_j": float(np.dot(p.dose_gy, mass[k]) / G_PER_KG),
+                        "energy_j": float(np.dot(p.dose_gy, mass[k]) / G_PER_KG),  # in the mesh
                         "max_dose_gy": float(p.dose_gy.max())}
                        for k, p in enumerate(self.phases)],
             "accumulated_max_dose_gy": float(self.accumulated.dose_gy.max()),
@@ -138,15 +138,15 @@ def phase_dose(path: str | os.PathLike[str], mesh: TetMesh, *,
     """The per-tet dose of one phase mesh (with point_data density) from one dose file."""
     path = Path(path)
     kind = dose_kind(path)
-    mass = tet_mass_g(mesh)
     if kind == "tally":
         tally = read_tally_csv(path, mesh.n_tets)
+        mass = tet_mass_g(mesh)
         if tally.kind == "energy":
             scale = J_PER_MEV * G_PER_KG / mass
         elif binned_density_g_cm3 is None:
             scale = np.ones(mesh.n_tets)
         else:
-            scale = mesh.volumes_mm3 * binned_density_g_cm3 / 1000.0 / mass
+            scale = mass_g(mesh.volumes_mm3, binned_density_g_cm3) / mass
         std = None if tally.sigma is None else tally.sigma * scale
         return PhaseDose(tally.value * scale, std, str(path), kind)
     dose, std = read_voxel_dose(path)

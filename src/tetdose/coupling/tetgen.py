@@ -37,6 +37,7 @@ from tetdose.core.icrp145 import (
     read_icrp145,
     read_material_file,
     read_tetgen,
+    with_ending,
 )
 from tetdose.coupling.binning import BinMaterial
 from tetdose.transport.physics.materials import MATERIALS
@@ -83,10 +84,10 @@ def write_tetgen(stem: str | os.PathLike[str], points_mm: FloatArray, tets: IntA
     tets = np.asarray(tets, dtype=np.int64)
     node = np.column_stack([np.arange(len(pts_cm)), pts_cm])
     ele = np.column_stack([np.arange(len(tets)), tets, np.asarray(material_id, np.int64)])
-    paths = [stem.with_name(stem.name + NODE), stem.with_name(stem.name + ELE)]
+    paths = [with_ending(stem, NODE), with_ending(stem, ELE)]
     for path, header, table, fmt in (
             (paths[0], f"{len(node)} 3 0 0", node, ["%d"] + [f"%.{COORD_DIGITS}g"] * 3),
             (paths[1], f"{len(ele)} 4 1", ele, "%d")):
         with atomic_write_file(path) as tmp:
             np.savetxt(tmp, table, fmt=fmt, header=header, comments="")
-    return [*paths, write_material_file(stem.with_name(stem.name + MATERIAL), materials)]
+    return [*paths, write_material_file(with_ending(stem, MATERIAL), materials)]
