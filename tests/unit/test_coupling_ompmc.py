@@ -125,6 +125,23 @@ def test_mesh_dose_keeps_the_voxel_energy_and_threads_do_not_change_it():
     assert on_mesh.geometry == "mesh" and on_mesh.extra["engine"] == "ompmc"
 
 
+def test_target_uncertainty_stops_after_the_batch_that_reaches_it():
+    grid = grid_for([-40, -40, 0], [40, 40, 80], [10.0, 10.0, 10.0])
+    rho, lab = _water(grid)
+    plan = Plan(_parallel([60, 60]).beams, materials={1: "water"}, regions={"phantom": 1})
+    opts = om.OmpmcOptions(electron_cutoff_mev=15.0)
+    full = om.simulate_ompmc(rho, plan, TransportSettings(20_000, 20, 1), labels=lab,
+                             options=opts, progress=False)
+    stopped = om.simulate_ompmc(rho, plan, TransportSettings(20_000, 20, 1, target_uncertainty=0.01,
+                                                             target_region="phantom"),
+                                labels=lab, options=opts, progress=False)
+    t = stopped.extra["target"]
+    assert t["reached"] and 4 <= t["batches"] < 20 and t["achieved"] <= 0.01
+    assert stopped.n_batches == t["batches"]
+    np.testing.assert_allclose(stopped.energy_per_batch_mev,
+                               full.energy_per_batch_mev[:t["batches"]], rtol=1e-12)
+
+
 def test_results_work_with_accumulation_and_images():
     grid = grid_for([-30, -30, 0], [30, 30, 60], [10.0, 10.0, 10.0])
     rho, lab = _water(grid)

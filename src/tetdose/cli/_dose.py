@@ -245,8 +245,7 @@ def _run_ompmc(args: argparse.Namespace, plan: Any, settings: Any, mesh: Any, de
     from dataclasses import replace
 
     from tetdose.core.io import write_mesh
-    from tetdose.coupling.ompmc import simulate_ompmc
-    from tetdose.coupling.onto_mesh import result_onto_mesh
+    from tetdose.coupling.ompmc import simulate_ompmc, simulate_ompmc_on_mesh
     from tetdose.dose.absolute import absolute_result
     from tetdose.transport import World
 
@@ -257,25 +256,29 @@ def _run_ompmc(args: argparse.Namespace, plan: Any, settings: Any, mesh: Any, de
         raise OptionError("--dask spreads tetdose's engine; ompmc runs here on OpenMP threads: "
                           "drop --dask")
     plan = plan.resolved(World(mesh=mesh, density=density, labels=labels))
-    voxel = simulate_ompmc(density, plan, settings, labels=labels, options=ompmc_options(args),
-                           progress=progress)
-    main = voxel if mesh is None else result_onto_mesh(voxel, density, mesh)
-    on_mesh = mesh is not None and mesh.region is not None
-    scaled = absolute_result(main, plan, mesh if on_mesh else density,
-                             None if on_mesh else labels)
-    added = {k: v for k, v in scaled.extra.items() if main.extra.get(k) is not v}
-    voxel = replace(voxel.with_extra(**added),
-                    particles=voxel.particles * scaled.particles / main.particles)
+    opts = ompmc_options(args)
+    if mesh is None:
+        main = voxel = simulate_ompmc(density, plan, settings, labels=labels, options=opts,
+                                      progress=progress)
+    else:
+        main, voxel = simulate_ompmc_on_mesh(density, mesh, plan, settings, labels=labels,
+                                             options=opts, progress=progress)
+    # one prescription / calibration factor for both: fixed on the mesh when it holds regions
+    by_mesh = mesh is not None and mesh.region is not None
+    ref = main if by_mesh else voxel
+    scaled = absolute_result(ref, plan, mesh if by_mesh else density, None if by_mesh else labels)
+    added = {k: v for k, v in scaled.extra.items() if ref.extra.get(k) is not v}
+    main, voxel = (replace(r.with_extra(**added), particles=r.particles * scaled.particles
+                           / ref.particles) for r in (main, voxel))
     outputs: list[str] = []
     if mesh is not None:
-        write_mesh(args.output, scaled.to_mesh(mesh))
+        write_mesh(args.output, main.to_mesh(mesh))
         outputs.append(str(args.output))
         extra["mesh"] = str(args.mesh)
     image_out = _sibling(args.output, ext="nrrd") if mesh is not None else args.output
     outputs += _write_images(voxel, image_out)
     world = "voxel (ompmc)" if mesh is None else "mesh (ompmc voxel energy on the tets)"
-    result = (scaled if mesh is not None else voxel).with_extra(**extra, world=world,
-                                                                outputs=outputs)
+    result = main.with_extra(**extra, world=world, outputs=outputs)
     path = result.save_json(record_path(args.output))
     if not args.quiet:
         led = result.ledger

@@ -78,13 +78,14 @@ from tetdose.core.calibration import HUCalibration
 from tetdose.core.image import Image, ImageGrid
 from tetdose.core.mesh import TetMesh
 from tetdose.coupling.iaea_phsp import write_phase_space
-from tetdose.coupling.onto_mesh import result_onto_mesh
+from tetdose.coupling.onto_mesh import result_onto_mesh, voxel_share
 from tetdose.errors import DensityError, OptionError, PlanError, TetdoseError
 from tetdose.plan.model import Plan
+from tetdose.transport import World, target_cells
 from tetdose.transport.history.result import DoseResult
 from tetdose.transport.physics.materials import MATERIALS, Material
 from tetdose.transport.physics.xs import ELECTRON_MASS_MEV, mass_coefficients
-from tetdose.transport.run.job import PROGRESS_DELAY_S, assign_materials
+from tetdose.transport.run.job import MIN_TARGET_BATCHES, PROGRESS_DELAY_S, assign_materials
 from tetdose.transport.run.settings import TransportSettings
 from tetdose.transport.sources.particles import source_particles
 
@@ -442,7 +443,35 @@ def simulate_ompmc(density: Image, plan: Plan, settings: TransportSettings, *,
     computed by ompmc (module docstring); per source particle like tetdose's engine
     (``plan.particles`` normalization). With ``mesh``, the voxel energy put on its tets
     (:func:`tetdose.coupling.onto_mesh.result_onto_mesh`): a mesh result.
+
+    ``settings.target_uncertainty`` stops the run, as tetdose's engine does, once the mean dose
+    of the target region (the tets of ``mesh`` holding it, else its voxels in ``labels``) has
+    that relative standard error, after at least :data:`MIN_TARGET_BATCHES` batches.
     """
+    if mesh is not None:
+        return simulate_ompmc_on_mesh(density, mesh, plan, settings, calibration=calibration,
+                                      labels=labels, options=options, progress=progress)[0]
+    return _simulate(density, plan, settings, calibration, labels, options, None, progress)
+
+
+def simulate_ompmc_on_mesh(density: Image, mesh: TetMesh, plan: Plan,
+                           settings: TransportSettings, *,
+                           calibration: HUCalibration | None = None,
+                           labels: Image | None = None, options: OmpmcOptions | None = None,
+                           progress: bool | None = None) -> tuple[DoseResult, DoseResult]:
+    """(mesh result, voxel result) of :func:`simulate_ompmc` with a mesh: the voxel run and its
+    energy put on the tets by :func:`tetdose.coupling.onto_mesh.result_onto_mesh`."""
+    if calibration is not None:
+        density = density.with_array(calibration.density(density.array).astype(np.float64))
+    voxel = _simulate(density, plan, settings, None, labels, options, mesh, progress)
+    return result_onto_mesh(voxel, density, mesh), voxel
+
+
+def _simulate(density: Image, plan: Plan, settings: TransportSettings,
+              calibration: HUCalibration | None, labels: Image | None,
+              options: OmpmcOptions | None, mesh: TetMesh | None,
+              progress: bool | None) -> DoseResult:
+    """The voxel run (``mesh``: where the target region may be)."""
     om = ompmc_module()
     options = options or OmpmcOptions()
     if calibration is not None:
@@ -454,8 +483,11 @@ def simulate_ompmc(density: Image, plan: Plan, settings: TransportSettings, *,
     threads = int(options.threads or numba.get_num_threads())
     threads_set = set_threads(om, threads)
     geometry = om.Geometry(*world.bounds_cm, world.media, world.density, world.material)
+    target = _target_weights(density, labels, mesh, plan, settings)
+    reached = None
     t0, cpu0 = time.perf_counter(), time.process_time()
     bounds = _batch_bounds(settings)
+    per_batch = np.diff(bounds)
     energy = np.zeros((settings.n_batches, len(world.mass_g)))
     ledger = np.zeros((settings.n_batches, 5))
     counts = np.zeros((settings.n_batches, 7), dtype=np.int64)
@@ -471,6 +503,13 @@ def simulate_ompmc(density: Image, plan: Plan, settings: TransportSettings, *,
                 energy[b], ledger[b], counts[b] = _run_batch(
                     eng, plan, settings, b, int(bounds[b]), int(bounds[b + 1] - bounds[b]))
                 bar.update(1)
+                done = b + 1
+                if target is not None and MIN_TARGET_BATCHES <= done < settings.n_batches:
+                    achieved = _region_error(energy[:done] @ target, per_batch[:done])
+                    bar.set_postfix_str(f"σ/D {100 * achieved:.2f} %")
+                    if achieved <= settings.target_uncertainty:
+                        reached = done
+                        break
     record = {
         "engine": "ompmc", "ompmc_version": str(om.__version__),
         "physics": "dose (coupled photon-electron transport, EGSnrc physics by ompmc)",
@@ -481,12 +520,43 @@ def simulate_ompmc(density: Image, plan: Plan, settings: TransportSettings, *,
         "threads": threads if threads_set else "OMP_NUM_THREADS",
         "materials": list(world.choices), "n_cells": len(world.mass_g),
         "cpu_s": time.process_time() - cpu0}
-    result = DoseResult(energy, np.diff(bounds), world.mass_g, ledger, counts, plan.particles,
-                        settings.seed, "analog", "voxel", time.perf_counter() - t0, __version__,
-                        density.grid, record)
-    if mesh is not None:
-        return result_onto_mesh(result, density, mesh)
+    done = reached or settings.n_batches
+    if target is not None:
+        record["target"] = {"uncertainty": settings.target_uncertainty,
+                            "region": settings.target_region, "reached": reached is not None,
+                            "batches": done, "histories": int(per_batch[:done].sum()),
+                            "achieved": _region_error(energy[:done] @ target, per_batch[:done])}
+    result = DoseResult(energy[:done], per_batch[:done], world.mass_g, ledger[:done],
+                        counts[:done], plan.particles, settings.seed, "analog", "voxel",
+                        time.perf_counter() - t0, __version__, density.grid, record)
     return result
+
+
+def _target_weights(density: Image, labels: Image | None, mesh: TetMesh | None, plan: Plan,
+                    settings: TransportSettings) -> FloatArray | None:
+    """Voxel weights w_v whose energy Σ_v E_v w_v is the target region's (``target_uncertainty``,
+    as tetdose's engine: ``target_region``, else the prescription's structure): the region's tets
+    of ``mesh`` (w_v = Σ_{k ∈ region} Vol(v ∩ k) / V_v) when the mesh holds it, else its voxels
+    in ``labels``. None without a target."""
+    if settings.target_uncertainty is None:
+        return None
+    if mesh is not None:
+        with contextlib.suppress(PlanError):
+            cells = target_cells(mesh, plan, settings)
+            return np.asarray(voxel_share(mesh, density.grid)[np.flatnonzero(cells)]
+                              .sum(axis=0)).ravel()
+    cells = target_cells(World(density=density, labels=labels), plan, settings)
+    return np.asarray(cells, dtype=np.float64)
+
+
+def _region_error(energy: FloatArray, histories: IntArray) -> float:
+    """Relative standard error of the mean of the batch estimates x_b = E_b / n_b (the batch
+    statistics of :attr:`DoseResult.dose_std_gy`); ∞ while the region has no energy."""
+    x = energy / histories
+    mean = x.mean()
+    if len(x) < 2 or mean <= 0.0:
+        return float("inf")
+    return float(np.sqrt(((x - mean) ** 2).sum() / (len(x) * (len(x) - 1))) / mean)
 
 
 def _preflight(eng: _Engine, plan: Plan, settings: TransportSettings) -> None:
@@ -523,7 +593,7 @@ def phase_engine(options: OmpmcOptions | None = None, progress: bool | None = No
     :func:`tetdose.coupling.onto_mesh.result_onto_mesh`; returns (mesh result, voxel result)."""
     def run(density: Image, mesh: TetMesh, plan: Plan, settings: TransportSettings
             ) -> tuple[DoseResult, DoseResult]:
-        voxel = simulate_ompmc(density, plan, settings, options=options, progress=progress)
-        return result_onto_mesh(voxel, density, mesh), voxel
+        return simulate_ompmc_on_mesh(density, mesh, plan, settings, options=options,
+                                      progress=progress)
 
     return run
