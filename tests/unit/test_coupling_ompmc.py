@@ -142,6 +142,27 @@ def test_target_uncertainty_stops_after_the_batch_that_reaches_it():
                                full.energy_per_batch_mev[:t["batches"]], rtol=1e-12)
 
 
+def test_an_arc_reaches_ompmc_as_tetdose_draws_it():
+    """A 180° 6 MV arc (photons drawn at their meterset instant): with electrons stopped where
+    they are born, ompmc's dose around the isocentre is tetdose's kerma from the same photons."""
+    grid = grid_for([-100, -100, -100], [100, 100, 100], [10.0, 10.0, 10.0])
+    rho = Image(np.ones(grid.shape), grid)
+    plan = Plan.from_dict({"beam": [{
+        "type": "linac", "spectrum": "6MV", "isocenter_mm": [0.0, 0.0, 0.0],
+        "jaws_mm": [-30.0, 30.0, -30.0, 30.0],
+        "arc": {"start_deg": 0.0, "stop_deg": 180.0, "direction": "CW"}}]})
+    settings = TransportSettings(20_000, 10, 1)
+    dose = om.simulate_ompmc(rho, plan, settings, progress=False,
+                             options=om.OmpmcOptions(electron_cutoff_mev=15.0))
+    kerma = simulate(rho, plan, settings, progress=False)
+    centre = (slice(8, 12),) * 3
+    per_batch = [d.reshape(grid.shape)[centre].sum() for d in dose.energy_per_batch_mev]
+    ratio = np.array(per_batch) / kerma.energy_per_batch_mev.reshape(-1, *grid.shape)[
+        (slice(None), *centre)].sum(axis=(1, 2, 3))
+    assert ratio.std(ddof=1) / np.sqrt(len(ratio)) < 0.01
+    assert ratio.mean() == pytest.approx(1.0, abs=0.02)
+
+
 def test_results_work_with_accumulation_and_images():
     grid = grid_for([-30, -30, 0], [30, 30, 60], [10.0, 10.0, 10.0])
     rho, lab = _water(grid)

@@ -27,9 +27,9 @@ compositions is ``OmpmcOptions.pegs``.
 
 **Source.** Nothing is approximated: tetdose draws the source particles with its own sampler and
 its own random streams (:func:`tetdose.transport.sources.particles.source_particles`, the particles
-its engine would start, bit for bit: pencil, parallel, point, linac with jaws and MLC), writes them
-as an IAEA phase space (:mod:`.iaea_phsp`) and ompmc replays it, one particle per history, each
-carried in a straight line to the grid (ompmc's ``calc_forward_phsp``).
+its engine would start, bit for bit: pencil, parallel, point, linac with jaws and MLC, arcs and
+VMAT), writes them as an IAEA phase space (:mod:`.iaea_phsp`) and ompmc replays it, one particle
+per history, each carried in a straight line to the grid (ompmc's ``calc_forward_phsp``).
 
 **Batches and statistics.** tetdose batch b (histories ``[b·N//B, (b+1)·N//B)``) is one ompmc
 run with its own Philox key (from :func:`tetdose._random.seed_for` of seed, stream, b) on those
