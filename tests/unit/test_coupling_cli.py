@@ -79,6 +79,20 @@ def test_dose4d_with_ompmc_accumulates_the_phases_energy(inputs, tmp_path):
     assert run.voxel.energy_mass_transfer.array.max() > 0
 
 
+def test_cli_dose4d_with_ompmc(inputs, tmp_path):
+    assert main(["deform", "-q", "--mesh", str(inputs / "mesh.vtu"), "--breathing",
+                 "--n-phases", "2", "--amplitude-mm", "3", "-o", str(tmp_path / "phases")]) == 0
+    assert main(["dose4d", "-q", "--phases", str(tmp_path / "phases"), "--plan",
+                 str(inputs / "plan.toml"), "--histories", "1000", "--batches", "4",
+                 "--like", str(inputs / "ct.nrrd"), "--engine", "ompmc",
+                 "-o", str(tmp_path / "dose4d")]) == 0
+    acc = read_mesh(tmp_path / "dose4d" / "accumulated.vtu")
+    assert acc.cell_data["dose"].max() > 0
+    record = json.loads((tmp_path / "dose4d" / "phase_000.0.json").read_text())
+    assert record["engine"] == "ompmc" and record["geometry"] == "mesh"
+    assert (tmp_path / "dose4d" / "voxel" / "accumulated_energy_mass_transfer.nrrd").exists()
+
+
 @pytest.mark.parametrize(("extra", "message"), [
     (["--mesh", "MESH", "-o", "OUT/dose.vtu"], "give --ct"),
     (["--ct", "CT", "--dask", "local:1", "-o", "OUT/dose.nrrd"], "drop --dask"),
