@@ -8,7 +8,7 @@ import math
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from tetdose._atomic import check_output_dir, check_output_file
+from tetdose._atomic import check_not_input, check_output_dir, check_output_file
 from tetdose._checks import check_density
 from tetdose.core.calibration import HUCalibration
 from tetdose.core.io import read_mesh
@@ -43,6 +43,39 @@ def check_output(args: argparse.Namespace, *, suffixes: Sequence[str] | None = N
         return check_output_dir(args.output, force=bool(getattr(args, "overwrite", False)),
                                 what="-o folder")
     return check_output_file(args.output, suffixes=suffixes, what="-o")
+
+
+#: Commands whose ``-o`` is a file (the others write a folder).
+FILE_OUTPUTS = ("map", "voxelize", "dose", "export-dose", "mesh")
+
+
+def output_files(args: argparse.Namespace) -> list[Path]:
+    """The files a command writes beside its ``-o`` (``dose``: images and the JSON record;
+    ``mesh``: the checks JSON), ``-o`` first; ``[]`` without ``-o``."""
+    output = getattr(args, "output", None)
+    if output is None or not str(output):
+        return []
+    if args.command == "dose":
+        from tetdose.cli._dose import output_files as dose_files
+
+        return dose_files(args)
+    if args.command == "mesh":
+        from tetdose.cli._mesh import checks_path
+
+        return [Path(output), checks_path(Path(output))]
+    return [Path(output)]
+
+
+def check_outputs_first(args: argparse.Namespace) -> None:
+    """Before any work: no output of the command is, holds or lies inside one of its inputs,
+    and the files it writes beside ``-o`` can be written (see :mod:`tetdose._atomic`)."""
+    files = output_files(args)
+    for i, path in enumerate(files):
+        what = "-o" if i == 0 else f"the output {path.name} beside -o"
+        if i > 0 or args.command in FILE_OUTPUTS:
+            check_output_file(path, what=what)
+        else:
+            check_not_input(path, what=what)
 
 
 def int_at_least(low: int) -> Callable[[str], int]:

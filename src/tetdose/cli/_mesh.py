@@ -109,11 +109,16 @@ def run(args: argparse.Namespace) -> int:
     path = write_mesh(args.output, mesh)
     report["mesher"] = args.mesher
     report["names"] = {str(k): v for k, v in names.items()}
-    json_path = path.with_name(path.name.rsplit(".", 1)[0] + ".checks.json")
+    json_path = checks_path(path)
     with atomic_write_file(json_path) as tmp:
         Path(tmp).write_text(json.dumps(report, indent=2) + "\n")
     _print(report, names, path, json_path)
     return 0
+
+
+def checks_path(output: Path) -> Path:
+    """``mesh.checks.json`` beside ``mesh.vtu``."""
+    return output.with_name(output.name.rsplit(".", 1)[0] + ".checks.json")
 
 
 def _print(report: dict, names: dict[int, str], path: Path, json_path: Path) -> None:
