@@ -13,7 +13,7 @@ from tetdose._checks import check_density
 from tetdose.core.calibration import HUCalibration
 from tetdose.core.io import read_mesh
 from tetdose.core.mesh import TetMesh
-from tetdose.errors import MeshError
+from tetdose.errors import MeshError, OutputError
 
 
 def add_calibration_arg(parser: argparse.ArgumentParser) -> None:
@@ -71,11 +71,17 @@ def check_outputs_first(args: argparse.Namespace) -> None:
     and the files it writes beside ``-o`` can be written (see :mod:`tetdose._atomic`)."""
     files = output_files(args)
     for i, path in enumerate(files):
-        what = "-o" if i == 0 else f"the output {path.name} beside -o"
-        if i > 0 or args.command in FILE_OUTPUTS:
-            check_output_file(path, what=what)
-        else:
-            check_not_input(path, what=what)
+        if i == 0:
+            if args.command in FILE_OUTPUTS:
+                check_output_file(path, what="-o")
+            else:
+                check_not_input(path, what="-o")
+            continue
+        try:
+            check_output_file(path, what="that file")
+        except OutputError as exc:
+            raise OutputError(f"-o {files[0]} also writes {path.name} beside it, and {exc}"
+                              ) from exc
 
 
 def int_at_least(low: int) -> Callable[[str], int]:

@@ -139,6 +139,8 @@ def _count(n: float) -> str:
 
 
 def duration_text(seconds: float) -> str:
+    if seconds < 10:
+        return f"{seconds:.2g} s"
     if seconds < 90:
         return f"{seconds:.0f} s"
     return f"{seconds / 60:.0f} min" if seconds < 5400 else f"{seconds / 3600:.1f} h"
@@ -210,7 +212,8 @@ def check_budget(est: MeshingEstimate, budget: Budget, n_labels: int) -> None:
         over.append(f"{duration_text(est.seconds)} (limit {duration_text(budget.max_seconds)}, "
                     "--max-minutes)")
     if over:
-        raise MeshError(f"meshing {n_labels} labels into about {_count(est.n_tets)} tets would "
+        raise MeshError(f"meshing {n_labels} label{'s' * (n_labels != 1)} into about "
+                        f"{_count(est.n_tets)} tets would "
                         f"need {' and '.join(over)}; give larger target sizes (--size-mm), mesh "
                         "fewer labels (--label), or pass --force to run it anyway")
 

@@ -166,7 +166,7 @@ def scale_for(rx: Prescription, dose_gy: FloatArray, mass_g: FloatArray,
                             "raise --histories")
         raise PlanError(f"too few histories: {_percent(zero)} % of the structure "
                         f"{rx.structure!r} scored nothing, so its {rx.metric} is 0 (raise "
-                        "--histories)")
+                        "--histories; if that stays, the beams cover only part of it)")
     scale = rx.dose_gy / m
     peak = float(np.max(dose_gy)) * scale
     if peak > MAX_OVER_PRESCRIPTION * rx.dose_gy:
