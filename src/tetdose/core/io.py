@@ -32,7 +32,7 @@ from tetdose._atomic import atomic_write_file, check_output_file, record_note
 from tetdose.core.image import Image, ImageGrid, check_ct_hu
 from tetdose.core.mesh import TetMesh, compact_points
 from tetdose.core.units import MESH_UNITS, check_mesh_on_grid
-from tetdose.errors import ImageError, MeshError, OptionError
+from tetdose.errors import ImageError, MeshError, OptionError, OutputError
 
 #: Relative tolerance on slice-to-slice spacing of a DICOM series.
 SLICE_SPACING_RTOL = 1e-3
@@ -490,5 +490,26 @@ def write_image(path: str | os.PathLike[str], image: Image, *, compress: bool = 
     check_output_file(path, suffixes=IMAGE_SUFFIXES, inputs=inputs, what="image output")
     path = Path(path)
     with atomic_write_file(path, inputs=inputs) as tmp, itk_messages(str(path)):
-        sitk.WriteImage(image.to_sitk(), str(tmp), compress)
+        try:
+            sitk.WriteImage(image.to_sitk(), str(tmp), compress)
+        except RuntimeError as exc:
+            raise _write_error(exc, path) from exc
     return path
+
+
+#: Below this many free bytes a failed write is taken for a full disk.
+_FULL_BYTES = 1 << 20
+
+
+def _write_error(exc: RuntimeError, path: Path) -> OutputError:
+    """SimpleITK's write failure (a RuntimeError, also for a full disk) in tetdose's words."""
+    try:
+        st = os.statvfs(path.parent)
+        full = st.f_bavail * st.f_frsize < _FULL_BYTES
+    except OSError:
+        full = False
+    if full:
+        return OutputError(f"no space left writing in {path.parent}; free some space or choose "
+                           "another disk")
+    return OutputError(f"cannot write image {path}: "
+                       f"{_itk_text(str(exc).strip().splitlines()[-1])}")
