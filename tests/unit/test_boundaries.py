@@ -269,3 +269,16 @@ def test_a_label_too_small_to_mesh_is_named_before_mmg():
     arr[2, 2, 2] = 7
     with pytest.raises(MeshError, match=r"label 7 has 1 voxel \(8 mm³\): too small"):
         conforming_mesh(Image(arr, g))
+
+
+def test_a_crashed_mesher_is_one_clear_error(tmp_path):
+    from tetdose.meshing.worker import _outcome
+
+    class Dead:
+        returncode = -11
+
+    log = tmp_path / "output.log"
+    log.write_text("  MMG3DLIB: start\n  ## Error: unable to allocate the mesh.\n")
+    with pytest.raises(MeshError, match=r"died \(signal 11 \(SIGSEGV\)\); its last words: ## "
+                                        r"Error: unable to allocate.*--size-mm"):
+        _outcome(Dead(), tmp_path / "no-result.pickle", log)

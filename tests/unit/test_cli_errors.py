@@ -252,7 +252,7 @@ CASES = [
     ("export-dose-into-ct-series", _with(EXPORT, like="{d}/dicom_ok")[:-1]
      + ["{d}/dicom_ok/rd.dcm"], ["inside the input folder", "DICOM series"]),
     ("dose-image-beside-is-input", HYBRID[:-3] + ["{d}/ct.vtu"] + HYBRID[-2:],
-     ["ct.nrrd beside -o", "also an input"]),
+     ["also writes ct.nrrd beside it", "also an input"]),
     ("dose-nested-output-folders", _with(DOSE, mesh="{d}/inverted_mapped.vtu")[:-1]
      + ["{o}/new/deeper/dose.vtu"], ["inverted"]),
     ("map-ct-folder-without-dicom", _map(ct="{d}/not_dicom"), ["holds no DICOM image series"]),

@@ -145,10 +145,11 @@ def main(argv: Sequence[str] | None = None) -> int:
                 mesh_unit_policy(getattr(args, "mesh_unit", None)):
             from tetdose.cli._common import check_outputs_first
 
-            check_outputs_first(args)
+            module = importlib.import_module(args._module)
+            check_outputs_first(args, module)
             check_inputs(_input_paths(args))
             with atomic_outputs():
-                code = int(importlib.import_module(args._module).run(args))
+                code = int(module.run(args))
             return code
     except TetdoseError as exc:
         return _fail(prefix, str(exc), args.debug)

@@ -49,27 +49,23 @@ def check_output(args: argparse.Namespace, *, suffixes: Sequence[str] | None = N
 FILE_OUTPUTS = ("map", "voxelize", "dose", "export-dose", "mesh")
 
 
-def output_files(args: argparse.Namespace) -> list[Path]:
-    """The files a command writes beside its ``-o`` (``dose``: images and the JSON record;
-    ``mesh``: the checks JSON), ``-o`` first; ``[]`` without ``-o``."""
+def output_files(args: argparse.Namespace, module: object = None) -> list[Path]:
+    """The files a command writes: ``-o`` first, then those its module's ``output_files(args)``
+    names beside it (``dose``: images and the JSON record; ``mesh``: the checks JSON); ``[]``
+    without ``-o``."""
     output = getattr(args, "output", None)
     if output is None or not str(output):
         return []
-    if args.command == "dose":
-        from tetdose.cli._dose import output_files as dose_files
-
-        return dose_files(args)
-    if args.command == "mesh":
-        from tetdose.cli._mesh import checks_path
-
-        return [Path(output), checks_path(Path(output))]
-    return [Path(output)]
+    more = getattr(module, "output_files", None)
+    files = [Path(output), *(more(args) if callable(more) else [])]
+    return list(dict.fromkeys(files))
 
 
-def check_outputs_first(args: argparse.Namespace) -> None:
-    """Before any work: no output of the command is, holds or lies inside one of its inputs,
-    and the files it writes beside ``-o`` can be written (see :mod:`tetdose._atomic`)."""
-    files = output_files(args)
+def check_outputs_first(args: argparse.Namespace, module: object = None) -> None:
+    """Before any work: no output of the command (see :func:`output_files`) is, holds or lies
+    inside one of its inputs, and the files it writes beside ``-o`` can be written (see
+    :mod:`tetdose._atomic`)."""
+    files = output_files(args, module)
     for i, path in enumerate(files):
         if i == 0:
             if args.command in FILE_OUTPUTS:

@@ -99,10 +99,10 @@ def record_path(output: Path) -> Path:
 
 
 def output_files(args: argparse.Namespace) -> list[Path]:
-    """Every file ``run`` writes (checked before any work, written as one set): ``-o``, the
-    images beside it, the JSON record."""
+    """The files ``run`` writes beside ``-o`` (checked before any work, written as one set with
+    it): the images, the JSON record."""
     out = Path(args.output)
-    files = [out]
+    files: list[Path] = []
     if args.ct is not None:
         image = _sibling(out, ext="nrrd") if args.mesh is not None else out
         files += [image, _sibling(image, "_std")]

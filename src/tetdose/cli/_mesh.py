@@ -159,6 +159,11 @@ def _progress(event: str, info: dict) -> None:
     print(f"tetdose mesh: {line}", file=sys.stderr, flush=True)
 
 
+def output_files(args: argparse.Namespace) -> list[Path]:
+    """The file ``run`` writes beside ``-o``: the checks JSON."""
+    return [checks_path(Path(args.output))]
+
+
 def checks_path(output: Path) -> Path:
     """``mesh.checks.json`` beside ``mesh.vtu``."""
     return output.with_name(output.name.rsplit(".", 1)[0] + ".checks.json")

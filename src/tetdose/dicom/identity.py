@@ -117,15 +117,22 @@ def _header(path: Path) -> Any | None:  # noqa: ANN401 - pydicom Dataset or None
 
 
 def identities_of(path: str | os.PathLike[str]) -> list[Identity]:
-    """Identities of a DICOM file, or of every series below a folder (empty: no DICOM)."""
+    """Identities of a DICOM file, or of every series in a folder — the folder's own files, or
+    if it has no DICOM file, those below it (a 4D-CT with one sub-folder per phase) — (empty:
+    no DICOM)."""
     path = Path(path)
     if path.is_file():
         ds = _header(path)
         return [] if ds is None else [identity_of_header(ds, path)]
     if not path.is_dir():
         return []
+    found = _series_in(path, sorted(p for p in path.iterdir() if p.is_file()))
+    return found or _series_in(path, sorted(p for p in path.rglob("*") if p.is_file()))
+
+
+def _series_in(path: Path, files: list[Path]) -> list[Identity]:
     series: dict[tuple[str, str], Identity] = {}
-    for f in sorted(p for p in path.rglob("*") if p.is_file()):
+    for f in files:
         ds = _header(f)
         if ds is None:
             continue
