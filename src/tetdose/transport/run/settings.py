@@ -23,6 +23,11 @@ class TransportSettings:
     estimator: str = "track_length"
     stream: int = 0
     max_tally_bytes: int = MAX_TALLY_BYTES
+    #: Stop once the relative standard error of the mean dose in ``target_region`` is at most this
+    #: (e.g. 0.01); ``n_histories`` is then the cap. None: run every history.
+    target_uncertainty: float | None = None
+    #: Structure of the target (a plan [regions] name or a label); None: the prescription's.
+    target_region: str | int | None = None
 
     def __post_init__(self) -> None:
         if int(self.n_batches) < 2:
@@ -37,6 +42,9 @@ class TransportSettings:
                             f"{self.energy_cutoff_mev}")
         if self.estimator not in ESTIMATORS:
             raise PlanError(f"estimator {self.estimator!r} is unknown; use one of {ESTIMATORS}")
+        if self.target_uncertainty is not None and not 0.0 < self.target_uncertainty < 1.0:
+            raise PlanError(f"target_uncertainty is a relative standard error in (0, 1), e.g. "
+                            f"0.01 for 1 %; got {self.target_uncertainty}")
         for name in ("n_histories", "n_batches", "seed", "stream"):
             object.__setattr__(self, name, int(getattr(self, name)))
 
