@@ -69,8 +69,9 @@ FOLDER_OUTPUTS = ("deform", "register", "4dct", "compare", "dose4d", "demo", "ph
 CT_READERS = ("map", "voxelize", "evaluate", "deform", "register", "4dct", "dose", "export-dose",
               "dose4d", "mesh")
 
-#: Commands that may combine DICOM inputs: they take --allow-frame-mismatch.
-FRAME_CHECKED = (*CT_READERS, "compare")
+#: Commands without input files; every other one checks its DICOM inputs (one patient, one
+#: frame) and takes --allow-frame-mismatch.
+NO_INPUTS = ("demo", "phantom")
 
 #: Commands that read a mesh beside an image: they take --mesh-unit.
 MESH_READERS = ("map", "voxelize", "evaluate", "deform", "4dct", "dose", "dose4d", "compare",
@@ -113,7 +114,7 @@ def build_parser() -> argparse.ArgumentParser:
                            help="resample a DICOM CT series with a gantry tilt or sheared grid "
                                 "onto an orthogonal grid (linear, -1000 HU outside) instead of "
                                 "refusing it")
-        if name in FRAME_CHECKED:
+        if name not in NO_INPUTS:
             p.add_argument("--allow-frame-mismatch", action="store_true",
                            help="combine DICOM inputs whose PatientID, FrameOfReferenceUID (or, "
                                 "for 4D-CT phases, StudyInstanceUID) differ, with a warning "
