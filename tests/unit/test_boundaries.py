@@ -114,6 +114,10 @@ def test_mesh_unit_m_reads_the_metre_mesh_as_the_mm_one(d, tmp_path):
     assert main([*argv, "--mesh-unit", "m", "-o", str(tmp_path / "m.vtu")]) == 0
     np.testing.assert_allclose(read_mesh(tmp_path / "m.vtu").points_mm, mm.points_mm,
                                rtol=1e-12)
+    assert main(["dose", "-q", "--mesh", str(d / "mapped_in_m.vtu"), "--ct", str(d / "ct.nrrd"),
+                 "--plan", str(d / "plan.toml"), "--histories", "2000", "--batches", "2",
+                 "--mesh-unit", "m", "-o", str(tmp_path / "dose.vtu")]) == 0
+    assert json.loads((tmp_path / "dose.json").read_text())["mesh_unit"] == "m"
 
 
 # --- label images: one rule ----------------------------------------------------------------------
