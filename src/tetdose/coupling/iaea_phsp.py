@@ -60,10 +60,14 @@ def paths(base: str | os.PathLike[str]) -> tuple[Path, Path]:
 def write_phase_space(base: str | os.PathLike[str], energy_mev: FloatArray,
                       position_cm: FloatArray, direction: FloatArray,
                       weight: FloatArray | None = None, particle: int | IntArray = PHOTON, *,
-                      title: str = "tetdose source particles") -> tuple[Path, Path]:
+                      title: str = "tetdose source particles",
+                      scratch: bool = False) -> tuple[Path, Path]:
     """Write ``base.IAEAheader`` and ``base.IAEAphsp`` (atomically), one history per particle.
 
-    ``direction`` rows are unit vectors; ``weight`` defaults to 1. Returns (header, data) paths.
+    ``direction`` rows are unit vectors; ``weight`` defaults to 1. ``scratch``: a file for a
+    temporary folder the caller owns (an engine's input), written directly — not an output of
+    the command (:func:`tetdose._atomic.atomic_outputs` would hold it back until the command
+    ends). Returns (header, data) paths.
     """
     e = np.asarray(energy_mev, dtype=np.float64).reshape(-1)
     n = len(e)
@@ -99,6 +103,10 @@ def write_phase_space(base: str | os.PathLike[str], energy_mev: FloatArray,
         "$PHOTONS:", str(counts[PHOTON]), "$ELECTRONS:", str(counts[ELECTRON]),
         "$POSITRONS:", str(counts[POSITRON]), ""])
     head, data = paths(base)
+    if scratch:
+        rec.tofile(data)
+        head.write_text(header)
+        return head, data
     with atomic_write_file(data) as tmp:
         rec.tofile(tmp)
     with atomic_write_file(head) as tmp:

@@ -413,7 +413,7 @@ def _run_batch(eng: _Engine, plan: Plan, settings: TransportSettings, b: int, fi
         energy = np.append(energy, energy[0])
         weight = np.append(weight, 0.0)
     base = eng.workdir / f"batch{b}"
-    write_phase_space(base, energy, pos_cm, direction, weight)
+    write_phase_space(base, energy, pos_cm, direction, weight, scratch=True)
     om = eng.module
     physics = om.Physics(**eng.physics, seeds=_key(settings.seed, settings.stream, b))
     with captured_output() as log:
