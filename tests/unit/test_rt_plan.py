@@ -85,7 +85,7 @@ def test_sampled_sources_match_the_control_points(tmp_path):
     meterset × open area / SAD² (equal fluence per MU). (The step-and-shoot segments share one
     source position: their union.)"""
     back = Plan.from_rt_plan(write_rt_plan(_plan(), tmp_path / "plan.dcm"))
-    src = source_arrays(back, TransportSettings(n_histories=10, n_batches=2))
+    src = source_arrays(back, TransportSettings(n_histories=10, n_batches=2, physics="kerma"))
     expected = []  # per beam: source position, axes, sad, union of segment apertures, MU share
     for beam in back.treatment_beams:
         seg = beam.segments[0]

@@ -23,7 +23,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import helpers
 from tetdose.core.image import Image, ImageGrid
 from tetdose.core.mesh import TetMesh
 from tetdose.plan.model import Plan
@@ -32,6 +31,8 @@ from tetdose.transport import simulate
 from tetdose.transport.geometry.world import World
 from tetdose.transport.physics.electron_xs import csda_range_g_cm2
 from tetdose.transport.run.settings import TransportSettings
+
+import helpers
 
 #: Photon cut-off that keeps every photon local (no bremsstrahlung photon is produced).
 NO_PHOTONS_MEV = 19.9

@@ -26,7 +26,7 @@ from tetdose.cli._common import (
     read_mapped_mesh,
 )
 from tetdose.errors import PlanError
-from tetdose.transport.run.settings import ESTIMATORS
+from tetdose.transport.run.settings import ELECTRON_CUTOFF_MEV, ESTIMATORS, PHYSICS
 
 MESH_SUFFIXES = (".vtu", ".vtk", ".xdmf", ".msh")
 
@@ -61,8 +61,21 @@ def add_run_args(parser: argparse.ArgumentParser, per: str = "") -> None:
     parser.add_argument("--seed", type=int_at_least(0), default=1, help="master random seed")
     parser.add_argument("--batches", type=int_at_least(2), default=10,
                         help="independent batches (≥ 2, for σ)")
-    parser.add_argument("--estimator", choices=ESTIMATORS,
-                        default="track_length", help="dose tally (default: track_length)")
+    parser.add_argument("--estimator", choices=ESTIMATORS, default=None,
+                        help="dose tally (default: analog with --physics dose, track_length "
+                             "with kerma)")
+    parser.add_argument("--physics", choices=PHYSICS, default="dose",
+                        help="dose: electrons transported, absorbed dose (default); kerma: "
+                             "charged particles deposit where they are born (fast)")
+    parser.add_argument("--electron-cutoff-mev", type=float_in(0.001, 20.0),
+                        default=ELECTRON_CUTOFF_MEV,
+                        help=f"electron/positron cut-off and δ-ray threshold, kinetic [MeV] "
+                             f"(default {ELECTRON_CUTOFF_MEV})")
+
+
+def physics_args(args: argparse.Namespace) -> dict[str, object]:
+    """TransportSettings keywords of ``--physics`` and ``--electron-cutoff-mev``."""
+    return {"physics": args.physics, "electron_cutoff_mev": args.electron_cutoff_mev}
 
 
 def add_dask_arg(parser: argparse.ArgumentParser) -> None:
@@ -133,7 +146,7 @@ def run(args: argparse.Namespace) -> int:
         raise PlanError("--labels labels the CT's voxels; give --ct too")
     plan = load_plan(args.plan, args.rtplan)
     settings = TransportSettings(int(args.histories), args.batches, args.seed,
-                                 args.cutoff_mev, args.estimator)
+                                 args.cutoff_mev, args.estimator, **physics_args(args))
     progress = False if args.quiet else None
     extra: dict[str, object] = {"plan": str(args.plan), "rtplan": str(args.rtplan),
                                 "dask": args.dask}

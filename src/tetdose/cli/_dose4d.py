@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 
 from tetdose.cli._common import add_calibration_arg, calibration_from, check_output, int_at_least
-from tetdose.cli._dose import add_dask_arg, add_run_args, dask_context
+from tetdose.cli._dose import add_dask_arg, add_run_args, dask_context, physics_args
 from tetdose.core.io import read_ct
 from tetdose.dose.dose4d import run_dose4d, write_dose4d
 from tetdose.errors import OptionError
@@ -45,7 +45,7 @@ def run(args: argparse.Namespace) -> int:
     series = PhaseSeries.read(None, args.phases)
     plan = Plan.from_toml(args.plan)
     settings = TransportSettings(n_histories=int(args.histories), n_batches=args.batches,
-                                 seed=args.seed, estimator=args.estimator)
+                                 seed=args.seed, estimator=args.estimator, **physics_args(args))
     ct = read_ct(args.like) if args.like else None
     if args.dvf and ct is None:
         raise OptionError("--dvf warps the reference CT of --like; give --like too")

@@ -42,8 +42,7 @@ from tetdose.transport.history._photon import (
     flight,
 )
 from tetdose.transport.physics._photon import (
-    _grid_position,
-    _lerp,
+    branching_fractions,
     rotate_direction,
     sample_klein_nishina,
 )
@@ -70,8 +69,7 @@ def photon_interaction(xs, m, cell, e, u, v, w, state, e_cut, tally, ledger, cou
                        n_stack, x, y, z):
     """One photon interaction at (x, y, z) (module docstring): returns
     (state, alive, e, u, v, w, n_stack) of the photon."""
-    i, f = _grid_position(xs, e)
-    p_incoherent = _lerp(xs.p_incoherent, m, i, f)
+    p_incoherent, p_pair = branching_fractions(xs, m, e)
     state, r = next_uniform(state)
     if r < p_incoherent:
         state, e_out, cos_theta = sample_klein_nishina(e, state)
@@ -83,7 +81,7 @@ def photon_interaction(xs, m, cell, e, u, v, w, state, e_cut, tally, ledger, cou
         return state, True, e_out, u2, v2, w2, n_stack
     state, r_phi = next_uniform(state)
     phi = _TWO_PI * r_phi
-    if r < p_incoherent + _lerp(xs.p_pair, m, i, f) and e > 2.0 * ELECTRON_MASS_MEV:
+    if r < p_incoherent + p_pair and e > 2.0 * ELECTRON_MASS_MEV:
         t_total = e - 2.0 * ELECTRON_MASS_MEV
         state, xi = next_uniform(state)
         t_minus = xi * t_total

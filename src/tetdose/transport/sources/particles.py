@@ -23,7 +23,7 @@ from tetdose.plan.photon_source import PhotonSource
 from tetdose.transport.run.settings import TransportSettings
 from tetdose.transport.sources._sample import SourceArrays
 from tetdose.transport.sources._volume import VolumeArrays
-from tetdose.transport.sources.arrays import source_arrays
+from tetdose.transport.sources.arrays import E_MAX_MEV, source_arrays
 
 #: Order of the groups in ``group_cdf``.
 GROUPS = ("photon", "electron", "positron", "volume")
@@ -41,7 +41,7 @@ class ParticleSources(NamedTuple):
 def _group_arrays(beams: Sequence[PhotonSource], plan: Plan, settings: TransportSettings,
                   to_frame: Callable[[FloatArray, bool], FloatArray] | None) -> SourceArrays:
     if not beams:
-        beams = (PhotonSource("pencil", (0.0, 0.0, 0.0), energies_mev=(1.0,)),)  # never drawn
+        beams = (PhotonSource("pencil", (0.0, 0.0, 0.0), energies_mev=(E_MAX_MEV,)),)  # never drawn
     view = SimpleNamespace(sources=tuple(beams), require_resolved=plan.require_resolved)
     return source_arrays(view, settings, to_frame)  # type: ignore[arg-type]
 
