@@ -235,3 +235,25 @@ def test_photon_beam_builds_up_dose_below_the_surface():
     ratio = d[deep].sum() / k[deep].sum()
     assert abs(ratio - 1.0) < 0.04, ratio
     assert np.all(np.diff(d[:4]) > 0)  # rising through the build-up
+
+
+def test_dose_mode_on_dask_matches_the_local_run_bitwise():
+    distributed = pytest.importorskip("distributed", reason="dask.distributed is not installed "
+                                      "(pip install 'tetdose[dask]')")
+    from tetdose.transport.run.distributed import simulate_distributed
+
+    mesh = helpers.box_mesh((-20, -20, 0), (20, 20, 40), (3, 3, 4), jitter=0.2, seed=1)
+    mesh = mesh.with_data(point_data={"density": 1.0 + 0.01 * mesh.points_mm[:, 2]})
+    plan = Plan((PhotonSource("parallel", [0.0, 0.0, -20.0], [0, 0, 1], energies_mev=[3.0],
+                              field_mm=[20.0, 20.0]),) + CHARGED[:1])
+    settings = TransportSettings(2000, 6, 17, electron_cutoff_mev=0.05)
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False,
+                                  dashboard_address=None) as cluster, \
+            distributed.Client(cluster) as client:
+        (remote,) = simulate_distributed(client, [mesh], plan, settings, batches_per_task=4,
+                                         progress=False)
+    local = simulate(mesh, plan, settings, progress=False)
+    assert local.record()["electron_steps"] > 0 and local.energy_per_batch_mev.sum() > 0
+    np.testing.assert_array_equal(remote.energy_per_batch_mev, local.energy_per_batch_mev)
+    np.testing.assert_array_equal(remote.ledger_per_batch_mev, local.ledger_per_batch_mev)
+    np.testing.assert_array_equal(remote.counts_per_batch, local.counts_per_batch)

@@ -60,6 +60,12 @@ def particle_sources(plan: Plan, settings: TransportSettings,
                      volume: VolumeArrays) -> tuple[SourceArrays, ParticleSources]:
     """(photon beam arrays, the other groups) of ``plan`` in the world's frame."""
     plan.require_resolved()
+    for v in plan.volume_sources:
+        cut = settings.energy_cutoff_mev if v.particle == "photon" else 0.0
+        if max(v.energies_mev) > E_MAX_MEV or min(v.energies_mev) < cut:
+            raise PlanError(f"volume source energies must lie between {cut:g} MeV (the photon "
+                            f"cut-off for photons) and {E_MAX_MEV} MeV, got "
+                            f"{min(v.energies_mev):g}…{max(v.energies_mev):g} MeV")
     by = {p: [b for b in plan.sources if b.particle == p] for p in GROUPS[:3]}
     weights = [sum(b.weight for b in by[p]) for p in GROUPS[:3]]
     weights.append(sum(v.weight for v in plan.volume_sources))
