@@ -5,6 +5,7 @@ voxel doses agree on a homogeneous box, and a photon beam builds up its dose und
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import subprocess
@@ -257,3 +258,32 @@ def test_dose_mode_on_dask_matches_the_local_run_bitwise():
     np.testing.assert_array_equal(remote.energy_per_batch_mev, local.energy_per_batch_mev)
     np.testing.assert_array_equal(remote.ledger_per_batch_mev, local.ledger_per_batch_mev)
     np.testing.assert_array_equal(remote.counts_per_batch, local.counts_per_batch)
+
+
+def test_cli_dose_is_the_default_and_the_record_says_so(tmp_path):
+    from tetdose.cli import main
+    from tetdose.core.io import read_image, write_image
+
+    grid = ImageGrid(np.array([-9.0, -9.0, 1.0]), np.full(3, 2.0), np.eye(3), (10, 10, 10))
+    write_image(tmp_path / "ct.nrrd", Image(np.zeros(grid.shape, np.int16), grid))
+    write_image(tmp_path / "labels.nrrd", Image(np.ones(grid.shape, np.int16), grid))
+    (tmp_path / "plan.toml").write_text(textwrap.dedent("""
+        [[beam]]
+        type = "pencil"
+        particle = "electron"
+        energy_mev = 4.0
+        position_mm = [0.0, 0.0, -5.0]
+        [materials]
+        1 = "water"
+    """))
+    common = ["--ct", str(tmp_path / "ct.nrrd"), "--labels", str(tmp_path / "labels.nrrd"),
+              "--plan", str(tmp_path / "plan.toml"), "--histories", "2e3", "-q"]
+    assert main(["dose", *common, "--electron-cutoff-mev", "0.1", "-o",
+                 str(tmp_path / "dose.nrrd")]) == 0
+    rec = json.loads((tmp_path / "dose.json").read_text())
+    assert rec["physics"] == "dose" and rec["electron_cutoff_mev"] == 0.1
+    assert rec["estimator"] == "analog" and rec["ledger"]["electron_deposited_mev"] > 0
+    assert read_image(tmp_path / "dose.nrrd").array.max() > 0
+    # kerma mode cannot follow electrons: one line, exit 2, nothing written
+    assert main(["dose", *common, "--physics", "kerma", "-o", str(tmp_path / "k.nrrd")]) == 2
+    assert not (tmp_path / "k.nrrd").exists()
