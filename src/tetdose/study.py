@@ -235,9 +235,12 @@ class _Run:
             g = gamma_index(a, b, dose_percent=3.0, dta_mm=3.0, mask=inside)
             gammas[f"{name} 3%/3mm global"] = g.summary()
             self.figures.append(gamma_figure(g, k=k))
-        self.figures.append(dose_slices_figure(d4.body.combined, emt,
-                                               labels=("organ mesh + body accumulated",
-                                                       "voxel EMT"), k=k, unit=_UNIT))
+        named = {n: self.label_of[n] for n in STRUCTURES
+                 if n in self.label_of and (ref_mesh.region == self.label_of[n]).any()}
+        self.figures.append(dose_slices_figure(
+            d4.body.combined, emt, labels=("organ mesh + body accumulated", "voxel EMT"), k=k,
+            unit=_UNIT, ct_hu=self.ph.ct, mesh=ref_mesh, structures=named,
+            prescription_gy=self.plan.prescription.dose_gy if self.plan.prescription else None))
         g = gamma_index(emt, d4.body.combined, dose_percent=3.0, dta_mm=3.0)
         gammas["accumulated, whole body: energy/mass transfer vs organ mesh + body 3%/3mm "
                "global"] = g.summary()

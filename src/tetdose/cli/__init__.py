@@ -42,12 +42,17 @@ COMMANDS = {
     "demo": ("tetdose.cli._demo", "the whole study on the built-in thorax phantom, with a report"),
     "phantom": ("tetdose.cli._phantom", "write a seeded phantom: CT, labels and tet mesh"),
     "mesh": ("tetdose.cli._mesh", "one conforming tetrahedral mesh of labels (MMG; tetdose[meshing])"),
+    "export-phases": ("tetdose.cli._export_phases",
+                      "phases as TetGen/ICRP-145 or Abaqus meshes for Geant4, PHITS, MCNP6"),
+    "import-dose": ("tetdose.cli._import_dose",
+                    "other codes' phase doses onto the mesh, accumulated over the phases"),
 }
 
 
 #: Commands whose -o is a folder replaced as a whole: they all take --overwrite (a command's
 #: module may add it itself through cli._common.add_output_args).
-FOLDER_OUTPUTS = ("deform", "register", "4dct", "compare", "dose4d", "demo", "phantom")
+FOLDER_OUTPUTS = ("deform", "register", "4dct", "compare", "dose4d", "demo", "phantom",
+                  "export-phases", "import-dose")
 
 #: Commands that read a CT: they take --resample-tilted (see tetdose.core.io.tilted_policy).
 CT_READERS = ("map", "voxelize", "evaluate", "deform", "register", "4dct", "dose", "export-dose",

@@ -25,7 +25,7 @@ from tetdose.cli._common import (
     int_at_least,
     read_mapped_mesh,
 )
-from tetdose.errors import PlanError
+from tetdose.errors import OptionError, PlanError
 from tetdose.transport.run.settings import ELECTRON_CUTOFF_MEV, ESTIMATORS, PHYSICS
 
 MESH_SUFFIXES = (".vtu", ".vtk", ".xdmf", ".msh")
@@ -42,6 +42,9 @@ def add_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--rtplan", type=Path,
                         help="DICOM RT Plan: its photon beams are added to --plan's (or used "
                              "alone)")
+    parser.add_argument("--fraction-group", type=int_at_least(1), metavar="N",
+                        help="the --rtplan fraction group to compute (FractionGroupNumber); "
+                             "needed when the RT Plan has several")
     add_run_args(parser)
     parser.add_argument("--cutoff-mev", type=float_in(0.0, 20.0, low_open=True), default=0.01,
                         help="photon energy cut-off, deposited locally [MeV]")
@@ -72,10 +75,39 @@ def add_run_args(parser: argparse.ArgumentParser, per: str = "") -> None:
                         help=f"electron/positron cut-off and δ-ray threshold, kinetic [MeV] "
                              f"(default {ELECTRON_CUTOFF_MEV})")
 
+    parser.add_argument("--target-uncertainty", type=relative_uncertainty, metavar="PCT",
+                        help="stop once the mean dose in --target-region has this relative "
+                             "standard error (e.g. 1%% or 0.01); --histories is then the cap "
+                             "(runs here, not with --dask; more --batches stop finer)")
+    parser.add_argument("--target-region", metavar="NAME|LABEL",
+                        help="structure of --target-uncertainty (default: the prescription's)")
 
-def physics_args(args: argparse.Namespace) -> dict[str, object]:
-    """TransportSettings keywords of ``--physics`` and ``--electron-cutoff-mev``."""
-    return {"physics": args.physics, "electron_cutoff_mev": args.electron_cutoff_mev}
+
+def relative_uncertainty(text: str) -> float:
+    """``1%`` → 0.01, ``0.01`` → 0.01; refused outside (0, 1)."""
+    try:
+        value = float(text[:-1]) / 100.0 if text.endswith("%") else float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number or a percentage (e.g. 1%)"
+                                         ) from None
+    if not 0.0 < value < 1.0:
+        raise argparse.ArgumentTypeError(f"{text!r}: give a relative uncertainty between 0 and "
+                                         "100 %, e.g. 1%")
+    return value
+
+
+def run_settings(args: argparse.Namespace, **kw: Any) -> Any:  # noqa: ANN401
+    """TransportSettings from the shared run options (:func:`add_run_args`) and ``kw``."""
+    from tetdose.transport import TransportSettings
+
+    if args.target_uncertainty is not None and getattr(args, "dask", None):
+        raise OptionError("--target-uncertainty stops a run here; it does not work with --dask "
+                          "(give --histories instead)")
+    return TransportSettings(n_histories=int(args.histories), n_batches=args.batches,
+                             seed=args.seed, estimator=args.estimator,
+                             target_uncertainty=args.target_uncertainty,
+                             target_region=args.target_region, physics=args.physics,
+                             electron_cutoff_mev=args.electron_cutoff_mev, **kw)
 
 
 def add_dask_arg(parser: argparse.ArgumentParser) -> None:
@@ -95,15 +127,17 @@ def dask_context(spec: str | None) -> Any:  # noqa: ANN401 - context manager
     return dask_client(spec)
 
 
-def load_plan(plan_toml: Path | None, rtplan: Path | None) -> Any:  # noqa: ANN401
-    """``--plan`` and/or ``--rtplan``: the RT Plan's beams join the plan.toml's."""
+def load_plan(plan_toml: Path | None, rtplan: Path | None,
+              fraction_group: int | None = None) -> Any:  # noqa: ANN401
+    """``--plan`` and/or ``--rtplan`` (its ``--fraction-group``): the RT Plan's beams join the
+    plan.toml's."""
     from tetdose.transport import Plan
 
     if plan_toml is None and rtplan is None:
         raise PlanError("give --plan plan.toml, --rtplan plan.dcm, or both")
     if plan_toml is None:
-        return Plan.from_rt_plan(rtplan)
-    return Plan.from_toml(plan_toml, rtplan=rtplan)
+        return Plan.from_rt_plan(rtplan, fraction_group)
+    return Plan.from_toml(plan_toml, rtplan=rtplan, fraction_group=fraction_group)
 
 
 def record_path(output: Path) -> Path:
@@ -131,7 +165,7 @@ def _write_images(result: Any, output: Path) -> list[str]:  # noqa: ANN401
 def run(args: argparse.Namespace) -> int:
     from tetdose.core.io import read_ct, read_image, write_image, write_mesh
     from tetdose.dose.absolute import absolute_result
-    from tetdose.transport import TransportSettings, World
+    from tetdose.transport import World
     from tetdose.transport.run.distributed import simulate_on
 
     if args.mesh is None and args.ct is None:
@@ -144,9 +178,8 @@ def run(args: argparse.Namespace) -> int:
         raise PlanError(f"with --ct alone the output must be an image (.nrrd), got {args.output}")
     if args.labels is not None and args.ct is None:
         raise PlanError("--labels labels the CT's voxels; give --ct too")
-    plan = load_plan(args.plan, args.rtplan)
-    settings = TransportSettings(int(args.histories), args.batches, args.seed,
-                                 args.cutoff_mev, args.estimator, **physics_args(args))
+    plan = load_plan(args.plan, args.rtplan, args.fraction_group)
+    settings = run_settings(args, energy_cutoff_mev=args.cutoff_mev)
     progress = False if args.quiet else None
     extra: dict[str, object] = {"plan": str(args.plan), "rtplan": str(args.rtplan),
                                 "dask": args.dask}

@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 
 from tetdose.cli._common import add_calibration_arg, calibration_from, check_output, int_at_least
-from tetdose.cli._dose import add_dask_arg, add_run_args, dask_context, physics_args
+from tetdose.cli._dose import add_dask_arg, add_run_args, dask_context, run_settings
 from tetdose.core.io import read_ct
 from tetdose.dose.dose4d import run_dose4d, write_dose4d
 from tetdose.errors import OptionError
@@ -14,7 +14,7 @@ from tetdose.motion.ct4d_read import find_phase, read_4dct
 from tetdose.motion.dvf import read_dvf
 from tetdose.motion.phases import PhaseSeries
 from tetdose.plan.prescription import PER_PHOTON_UNIT
-from tetdose.transport import Plan, TransportSettings
+from tetdose.transport import Plan
 
 
 def add_args(p: argparse.ArgumentParser) -> None:
@@ -44,8 +44,7 @@ def run(args: argparse.Namespace) -> int:
     check_output(args, folder=True)
     series = PhaseSeries.read(None, args.phases)
     plan = Plan.from_toml(args.plan)
-    settings = TransportSettings(n_histories=int(args.histories), n_batches=args.batches,
-                                 seed=args.seed, estimator=args.estimator, **physics_args(args))
+    settings = run_settings(args)
     ct = read_ct(args.like) if args.like else None
     if args.dvf and ct is None:
         raise OptionError("--dvf warps the reference CT of --like; give --like too")

@@ -134,7 +134,7 @@ def compare_doses(mesh: TetMesh, mesh_dose: FloatArray, voxel_dose: Image, *,
     kmax = np.unravel_index(int(np.argmax(np.where(region, ref.array, -np.inf))),
                             ref.array.shape)
     norm = float(ref.array[kmax])
-    figures = [report.dose_slices_figure(mesh_img, voxel, k=int(kmax[0]), unit=unit)]
+    figures = [report.dose_slices_figure(mesh_img, voxel, k=int(kmax[0]), unit=unit, mesh=mesh)]
     gammas = _gammas(ref, ev, region, int(kmax[0]), norm, criteria, threshold_percent,
                      gamma_max_points, figures)
     dvh_summary = _dvhs(mesh, dose, mesh_img, voxel, structures or {}, unit, figures)

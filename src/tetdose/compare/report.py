@@ -24,7 +24,9 @@ from tetdose._atomic import atomic_write_dir
 from tetdose.compare.dvh import DVH
 from tetdose.compare.gamma import GammaResult
 from tetdose.compare.profiles import Profile
+from tetdose.compare.slices import ISODOSE_FRACTIONS, SliceFrame, draw_dose_wash
 from tetdose.core.image import Image
+from tetdose.core.mesh import TetMesh
 from tetdose.plan.prescription import PER_PHOTON_UNIT
 
 
@@ -57,27 +59,58 @@ def pyplot() -> Any:
 
 
 def dose_slices_figure(a: Image, b: Image, *, labels: tuple[str, str] = ("mesh", "voxel"),
-                       k: int | None = None, unit: str = PER_PHOTON_UNIT) -> Figure:
+                       k: int | None = None, unit: str = PER_PHOTON_UNIT,
+                       ct_hu: Image | None = None, mesh: TetMesh | None = None,
+                       structures: Mapping[str, int] | None = None,
+                       prescription_gy: float | None = None) -> Figure:
     """Axial slice k (default: through the maximum of ``a``) of both doses and a − b.
 
-    ``unit``: "Gy" for prescribed doses, else doses are per source photon (the default)."""
+    Each dose is a colour wash over the CT (``ct_hu`` on the same grid, grey, HU −1000…400) with
+    isodose lines at 95/50/20 % of ``prescription_gy`` (else of the slice maximum of ``a``) and
+    the surfaces of ``mesh`` cut by the slice (one contour per ``structures`` name → region label,
+    else the whole mesh), axes in mm (:mod:`tetdose.compare.slices`). ``unit``: "Gy" for
+    prescribed doses, else doses are per source photon (the default)."""
     if k is None:
         k = int(np.unravel_index(int(np.argmax(a.array)), a.array.shape)[0])
     sa, sb = np.asarray(a.array[k], float), np.asarray(b.array[k], float)
     diff = sa - sb
+    frame = SliceFrame(a, k)
+    ct = None
+    if ct_hu is not None and ct_hu.array.shape == a.array.shape:
+        ct = np.asarray(ct_hu.array[k], float)
+    reference = prescription_gy if prescription_gy else max(float(sa.max()), 1e-30)
+    isodose = [f * reference for f in ISODOSE_FRACTIONS]
+    contours = {}
+    if mesh is not None:
+        named = structures or {"mesh": None}
+        contours = {name: frame.contours(mesh, label) for name, label in named.items()}
     plt = pyplot()
-    fig, axes = plt.subplots(1, 3, figsize=(13, 4))
-    vmax = max(float(sa.max()), float(sb.max()), 1e-30)
+    fig, axes = plt.subplots(1, 3, figsize=(15, 5), layout="constrained")
+    top = max(float(sa.max()), float(sb.max()), 1e-30)
+    for ax, img, title in ((axes[0], sa, labels[0]), (axes[1], sb, labels[1])):
+        im = draw_dose_wash(ax, frame, img, top_gy=top, ct_slice=ct, isodose_gy=isodose,
+                            contours=contours)
+        ax.set_title(title, fontsize=9)
+        fig.colorbar(im, ax=ax, shrink=0.7, label=unit)
     lim = max(float(np.abs(diff).max()), 1e-30)
-    for ax, img, title, kw in ((axes[0], sa, labels[0], {"vmin": 0, "vmax": vmax}),
-                               (axes[1], sb, labels[1], {"vmin": 0, "vmax": vmax}),
-                               (axes[2], diff, f"{labels[0]} − {labels[1]}",
-                                {"cmap": "RdBu_r", "vmin": -lim, "vmax": lim})):
-        im = ax.imshow(img, origin="lower", **kw)
-        ax.set_title(f"{title} [{unit}], slice k={k}", fontsize=9)
-        fig.colorbar(im, ax=ax, shrink=0.8)
-    data = {"k": k, labels[0]: sa, labels[1]: sb, "difference_gy": diff}
-    return Figure(f"dose_slice_k{k}", f"Axial slice {k}: doses and difference [{unit}]",
+    im = axes[2].imshow(diff, origin="lower", extent=frame.extent, cmap="RdBu_r", vmin=-lim,
+                        vmax=lim, interpolation="nearest")
+    axes[2].set_xlim(min(frame.extent[:2]), max(frame.extent[:2]))
+    axes[2].set_ylim(min(frame.extent[2:]), max(frame.extent[2:]))
+    axes[2].set_aspect("equal")
+    axes[2].set_title(f"{labels[0]} − {labels[1]}", fontsize=9)
+    axes[2].set_xlabel(frame.axis_labels()[0], fontsize=8)
+    axes[2].tick_params(labelsize=7)
+    fig.colorbar(im, ax=axes[2], shrink=0.7, label=unit)
+    basis = (f"{prescription_gy:g} Gy prescribed" if prescription_gy
+             else f"the maximum {reference:.3g} {unit}")
+    fig.suptitle(f"Axial slice k = {k} (z = {frame.z_mm:.1f} mm); isodoses 95/50/20 % of {basis}",
+                 fontsize=10)
+    data = {"k": k, "z_mm": frame.z_mm, "extent_mm": frame.extent, labels[0]: sa, labels[1]: sb,
+            "difference_gy": diff, "isodose_gy": isodose,
+            "contour_segments": {n: int(len(c)) for n, c in contours.items()}}
+    return Figure(f"dose_slice_k{k}", f"Axial slice {k} (z = {frame.z_mm:.1f} mm): doses over the "
+                  f"CT with isodoses and organ contours, and their difference [{unit}]",
                   render_png(fig), {**data, "unit": unit})
 
 
@@ -105,7 +138,7 @@ def dvh_figure(curves: Mapping[str, Sequence[DVH]], *, unit: str = PER_PHOTON_UN
     ``build_up_fraction`` per structure (:mod:`tetdose.dose.buildup`) in the legend."""
     build_up_fraction = build_up_fraction or {}
     plt = pyplot()
-    fig, ax = plt.subplots(figsize=(7, 4.5))
+    fig, ax = plt.subplots(figsize=(10, 4.5), layout="constrained")
     top = max(float(h.dose_gy[0]) for hs in curves.values() for h in hs)
     levels = np.linspace(0.0, 1.05 * top, 200)
     data: dict[str, Any] = {"dose_gy": levels, "unit": unit,
@@ -115,12 +148,15 @@ def dvh_figure(curves: Mapping[str, Sequence[DVH]], *, unit: str = PER_PHOTON_UN
             v = h.curve(levels)
             frac = build_up_fraction.get(structure, 0.0)
             note = f", {100 * frac:.0f} % in build-up" if frac > 0 else ""
+            m = h.metrics()
             ax.plot(levels, v, style, color=f"C{colour % 10}",
-                    label=f"{structure} ({h.name}){note}")
+                    label=f"{structure} ({h.name}): D95 {m['D95']:.3g}, D2 {m['D2']:.3g}, "
+                          f"Dmean {m['Dmean']:.3g}{note}")
             data[f"{structure}/{h.name}"] = {"volume_percent": v, **h.metrics()}
     ax.set_xlabel(f"dose [{unit}]")
     ax.set_ylabel("volume [%]")
-    ax.legend(fontsize=7)
+    ax.set_title(f"Cumulative DVHs (legend: D95, D2, Dmean in {unit})", fontsize=9)
+    ax.legend(fontsize=6, loc="center left", bbox_to_anchor=(1.01, 0.5))
     caption = "Cumulative dose–volume histograms"
     if build_up_mm is not None:
         caption += (f"; structures within {build_up_mm:g} mm of the skin lie in the build-up "

@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from tetdose._atomic import atomic_write_file, check_output_file
+from tetdose.core.icrp145 import is_icrp145, read_icrp145
 from tetdose.core.image import Image, check_ct_hu
 from tetdose.core.mesh import TetMesh, compact_points
 from tetdose.errors import ImageError, MeshError
@@ -59,13 +60,17 @@ def read_mesh(path: str | os.PathLike[str], *, fix_orientation: bool = False) ->
 
     Only ``tetra`` cells are kept; point and cell arrays are carried along. A region label is
     taken from the first cell array named in :data:`REGION_NAMES`. Inverted tetrahedra are an
-    error unless ``fix_orientation`` is true (then two vertices of each are swapped).
+    error unless ``fix_orientation`` is true (then two vertices of each are swapped). A
+    ``.node``/``.ele`` with a ``.material`` file beside it is an ICRP-145-style phantom (cm,
+    material densities): :func:`tetdose.core.icrp145.read_icrp145`.
     """
     import meshio
 
     path = Path(path)
     if not path.exists():
         raise MeshError(f"mesh file {path} does not exist")
+    if is_icrp145(path):
+        return read_icrp145(path)[0]
     if path.is_file() and path.stat().st_size == 0:
         raise MeshError(f"mesh file {path} is empty; give a VTU/VTK/MSH/INP/MESH/ELE file")
     said = io.StringIO()

@@ -30,8 +30,16 @@ calibration. Frozen dataclasses validated on construction (errors are :class:`Pl
     couch_deg = 0.0
     sad_mm = 1000.0
     jaws_mm = [-50.0, 50.0, -50.0, 50.0]    # x1, x2, y1, y2 at the isocentre plane
-    mlc = { boundaries_mm = [...], positions_mm = [...] }   # optional MLCX (as in RT Plan)
+    mlc = { boundaries_mm = [...], positions_mm = [...], axis = "X" }  # optional MLCX/MLCY
     weight = 1.0                # meterset (MU) of the beam
+    fluence_mode = "STANDARD"   # or "FFF" (computed with the same spectrum, flat fluence)
+    # A delivery (tetdose.plan.beams): control points, each changing what it names, with the
+    # cumulative meterset weight and the rotation directions towards the next one:
+    # control_points = [{ meterset_weight = 0, gantry_deg = 0, gantry_direction = "CW",
+    #                     mlc = [...2N leaf positions...], jaws_mm = [...] },
+    #                   { meterset_weight = 1, gantry_deg = 180 }]
+    # or an arc at the beam's aperture (start = stop: a full turn):
+    # arc = { start_deg = 181.0, stop_deg = 179.0, direction = "CW" }
     [patient]
     position = "HFS"            # "HFS" | "HFP" | "FFS" | "FFP"
     [regions]
@@ -44,6 +52,7 @@ calibration. Frozen dataclasses validated on construction (errors are :class:`Pl
     [calibration]               # or: absolute dose from the MU (tetdose.plan.mu_calibration)
     gy_per_mu = 0.00667         # Gy per MU at 100 mm depth, SSD 1000 mm, 100 × 100 mm²
     # rtplan = "plan.dcm"       # beams of a DICOM RT Plan (tetdose.plan.rt_plan), added
+    # fraction_group = 1        # its fraction group (FractionGroupNumber; needed if several)
 
 Field axes: ``e1`` is the unit vector of ``field_x_direction`` (default: the patient axis least
 aligned with the beam) made orthogonal to the beam axis; ``e2 = axis × e1``.
@@ -64,6 +73,7 @@ import numpy as np
 from tetdose.errors import PlanError
 from tetdose.plan.beams import LinacBeam
 from tetdose.plan.photon_source import PhotonSource
+from tetdose.plan.segments import DynamicSegment, beam_sources
 from tetdose.plan.spectra import is_named, named_spectrum, read_spectrum
 from tetdose.plan.volume_source import VolumeSource, volume_source_from_dict
 
@@ -72,7 +82,7 @@ if TYPE_CHECKING:
     from tetdose.plan.prescription import Prescription
 
 _SECTIONS = {"beam", "materials", "normalization", "regions", "prescription", "patient",
-             "rtplan", "calibration"}
+             "rtplan", "calibration", "fraction_group"}
 _BEAM_KEYS = {"type", "particle", "energy_mev", "spectrum", "position_mm", "direction", "field_mm",
               "half_angle_deg", "weight", "field_x_direction"}
 
@@ -83,9 +93,10 @@ class Plan:
 
     ``beams``: simple sources (pencil, parallel, point); ``treatment_beams``: :class:`LinacBeam`
     (from ``type = "linac"`` tables or an RT Plan); :attr:`sources` is both, flattened (one
-    point source per segment). ``regions``: structure name → region label (``[regions]``).
-    ``volume_sources``: :class:`VolumeSource` (``type = "volume"``), particles born inside the
-    world.
+    source per control-point interval that delivers meterset: a static point source, or a
+    :class:`~tetdose.plan.segments.DynamicSegment` while the machine moves). ``regions``:
+    structure name → region label (``[regions]``). ``volume_sources``: :class:`VolumeSource`
+    (``type = "volume"``), particles born inside the world.
     """
 
     beams: tuple[PhotonSource, ...] = ()
@@ -96,7 +107,7 @@ class Plan:
     prescription: Prescription | None = None
     calibration: MUCalibration | None = None
     volume_sources: tuple[VolumeSource, ...] = ()
-    sources: tuple[PhotonSource, ...] = field(init=False, repr=False)
+    sources: tuple[PhotonSource | DynamicSegment, ...] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         beams, linacs = tuple(self.beams), tuple(self.treatment_beams)
@@ -130,7 +141,7 @@ class Plan:
         flat = list(beams)
         for lb in linacs:
             if lb.isocenter_region is None:
-                flat.extend(lb.sources())
+                flat.extend(beam_sources(lb))
         for k, v in (("beams", beams), ("treatment_beams", linacs), ("materials", mats),
                      ("regions", regions), ("sources", tuple(flat))):
             object.__setattr__(self, k, v)
@@ -171,17 +182,22 @@ class Plan:
         return plan_dataset(self, ctx, plan_uid, number)
 
     @classmethod
-    def from_rt_plan(cls, path: str | os.PathLike[str]) -> Plan:
-        """The photon beams of a DICOM RT Plan (:mod:`tetdose.plan.rt_plan`) as a plan."""
-        from tetdose.plan.rt_plan import read_rt_plan_beams
+    def from_rt_plan(cls, path: str | os.PathLike[str], fraction_group: int | None = None
+                     ) -> Plan:
+        """The photon beams of a DICOM RT Plan (:mod:`tetdose.plan.rt_plan_read`) as a plan:
+        those of fraction group ``fraction_group`` (None: the plan's only one)."""
+        from tetdose.plan.rt_plan_read import read_rt_plan_beams
 
-        return cls(treatment_beams=read_rt_plan_beams(path))
+        return cls(treatment_beams=read_rt_plan_beams(path, fraction_group))
 
     @classmethod
     def from_toml(cls, path: str | os.PathLike[str],
-                  rtplan: str | os.PathLike[str] | None = None) -> Plan:
+                  rtplan: str | os.PathLike[str] | None = None,
+                  fraction_group: int | None = None) -> Plan:
         """Read ``plan.toml`` (see module doc); spectrum paths are relative to the plan file.
-        ``rtplan``: a DICOM RT Plan whose beams join the file's (``tetdose dose --rtplan``)."""
+        ``rtplan``: a DICOM RT Plan whose beams join the file's (``tetdose dose --rtplan``);
+        ``fraction_group``: its fraction group (``--fraction-group``, else the file's
+        ``fraction_group``, else the RT Plan's only one)."""
         path = Path(path)
         try:
             data = tomllib.loads(path.read_text())
@@ -189,11 +205,13 @@ class Plan:
             raise PlanError(f"cannot read plan {path}: {exc.strerror}") from exc
         except tomllib.TOMLDecodeError as exc:
             raise PlanError(f"{path} is not valid TOML: {exc}") from exc
-        return cls.from_dict(data, base_dir=path.parent, rtplan=rtplan)
+        return cls.from_dict(data, base_dir=path.parent, rtplan=rtplan,
+                             fraction_group=fraction_group)
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any], base_dir: Path = Path("."),
-                  rtplan: str | os.PathLike[str] | None = None) -> Plan:
+                  rtplan: str | os.PathLike[str] | None = None,
+                  fraction_group: int | None = None) -> Plan:
         from tetdose.plan.beams import linac_beam_from_dict
         from tetdose.plan.mu_calibration import MUCalibration
         from tetdose.plan.prescription import Prescription
@@ -214,8 +232,17 @@ class Plan:
                   if b.get("type") == "linac"]
         dicom_plans = ([base_dir / str(data["rtplan"])] if "rtplan" in data else []) + (
             [Path(rtplan)] if rtplan is not None else [])
+        if fraction_group is None and "fraction_group" in data:
+            if not dicom_plans or isinstance(data["fraction_group"], bool) or not isinstance(
+                    data["fraction_group"], int):
+                raise PlanError("fraction_group = N (an integer) selects the fraction group of "
+                                "the rtplan = \"plan.dcm\" beside it")
+            fraction_group = data["fraction_group"]
+        if fraction_group is not None and not dicom_plans:
+            raise PlanError(f"fraction group {fraction_group} of which RT Plan? give --rtplan "
+                            "plan.dcm (or rtplan = \"plan.dcm\" in plan.toml)")
         for dcm in dicom_plans:
-            linacs.extend(cls.from_rt_plan(dcm).treatment_beams)
+            linacs.extend(cls.from_rt_plan(dcm, fraction_group).treatment_beams)
         norm = data.get("normalization", {})
         rx, cal = data.get("prescription"), data.get("calibration")
         return cls(simple, data.get("materials", {}), float(norm.get("particles", 1.0)),

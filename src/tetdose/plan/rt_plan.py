@@ -3,31 +3,29 @@
 Written: Patient, General Study, RT Series, Frame of Reference, General Equipment, RT General
 Plan (RTPlanGeometry TREATMENT_DEVICE: tetdose has no RT Structure Set to reference, which
 PATIENT geometry requires; the isocentres are in the Frame of Reference of the CT), RT Patient
-Setup, RT Fraction Scheme (BeamMeterset per beam), RT Beams and SOP Common. Each beam segment
-becomes a pair of control points with the same aperture and cumulative meterset weights
-w_k, w_{k+1} (step-and-shoot, C.8.8.14.1), jaws as ASYMX/ASYMY, MLC as MLCX.
+Setup, RT Fraction Scheme (BeamMeterset per beam), RT Beams and SOP Common. Every control point
+of a beam is written (C.8.8.14.5): the first with every parameter, the later ones with each
+parameter that changes anywhere in the beam (angles, rotation directions, isocentre, jaws as
+ASYMX/ASYMY, leaves as MLCX/MLCY); a beam of one control point becomes the pair 0 → 1 of a
+static field. BeamType is STATIC when nothing moves while the beam is on (static fields,
+step-and-shoot), else DYNAMIC; the fluence mode (FFF) goes to PrimaryFluenceModeSequence.
+Numbers are written as the shortest decimal string that reads back to the same float, so a plan
+read from a file and written again reads back exactly.
 
-Read (:func:`read_rt_plan_beams`, or :meth:`tetdose.plan.model.Plan.from_rt_plan` for a
-whole :class:`Plan`): photon beams; nominal energy → named spectrum (≤ 1.5 MV: Co60,
-else ``"<E>MV"``, which must be one of the shipped spectra); isocentre, gantry, collimator and
-couch angles, X/ASYMX, Y/ASYMY jaws and MLCX leaves per control point, carried forward when a
-control point omits them (C.8.8.14.5). Segment i (control points i → i+1) gets the meterset
-weight ΔW_i = W_{i+1} − W_i of the beam's BeamMeterset (FractionGroupSequence); its angles are
-the mean of the two control points' (arcs are sampled at their control points), its aperture
-that of control point i. Refused with a PlanError naming the beam: non-photon radiation,
-wedges, blocks, compensators, boli, MLCY.
+Read: :func:`read_rt_plan_beams` (:mod:`tetdose.plan.rt_plan_read`), or
+:meth:`tetdose.plan.model.Plan.from_rt_plan` for a whole :class:`Plan`.
 """
 
 from __future__ import annotations
 
 import os
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-import pydicom
 from pydicom.dataset import Dataset
-from pydicom.errors import InvalidDicomError
 from pydicom.uid import RTPlanStorage
+from pydicom.valuerep import format_number_as_ds
 
 from tetdose._atomic import atomic_write_file
 from tetdose.dicom.modules import (
@@ -38,8 +36,11 @@ from tetdose.dicom.modules import (
     study_context,
 )
 from tetdose.dicom.uid import DEFAULT_PREFIX, derive_uid
-from tetdose.errors import DicomError, PlanError
-from tetdose.plan.beams import MLC, ControlPoint, LinacBeam
+from tetdose.errors import DicomError
+from tetdose.plan.beams import ControlPoint, LinacBeam, same_state
+from tetdose.plan.rt_plan_read import read_rt_plan_beams
+
+__all__ = ["plan_dataset", "read_rt_plan_beams", "write_rt_plan"]
 
 if TYPE_CHECKING:  # the model reads RT Plans (Plan.from_rt_plan): no runtime import back
     from tetdose.plan.model import Plan
@@ -57,7 +58,7 @@ def write_rt_plan(plan: Plan, path: str | os.PathLike[str], *,
     if not plan.treatment_beams or plan.unresolved:
         raise DicomError("an RT Plan needs linac beams with numeric isocentres; resolve "
                          "structure isocentres first (plan.resolved(geometry))")
-    seed = repr([(b.name, b.spectrum, b.isocenter_mm.tolist(), len(b.segments))
+    seed = repr([(b.name, b.spectrum, b.isocenter_mm.tolist(), len(b.control_points))
                  for b in plan.treatment_beams])
     ctx = study_context(reference_ct, seed=seed, study_instance_uid=study_instance_uid,
                         frame_of_reference_uid=frame_of_reference_uid, uid_prefix=uid_prefix)
@@ -104,48 +105,75 @@ def _item(**kw: Any) -> Dataset:  # noqa: ANN401
 
 
 def _ds(x: float) -> str:
-    return f"{float(x):.10g}"
+    """A Decimal String (≤ 16 characters) that reads back to ``x``: the shortest repr when it
+    fits, else pydicom's 16-character rounding."""
+    r = repr(float(x) + 0.0)  # + 0.0: no "-0.0"
+    r = r[:-2] if r.endswith(".0") else r
+    return r if len(r) <= 16 else format_number_as_ds(float(x))
 
 
 def _beam_item(b: LinacBeam, number: int, setup: int) -> Dataset:
     from tetdose.plan.spectra import canonical_name
 
-    mlc = next((s.mlc for s in b.segments if s.mlc is not None), None)
+    cps = list(b.control_points)
+    if len(cps) == 1:  # a static field: the pair 0 → 1 of the same state
+        cps = [replace(cps[0], meterset_weight=0.0), replace(cps[0], meterset_weight=1.0)]
+    mlc = cps[0].mlc
     devices = [_item(RTBeamLimitingDeviceType="ASYMX", NumberOfLeafJawPairs=1),
                _item(RTBeamLimitingDeviceType="ASYMY", NumberOfLeafJawPairs=1)]
     if mlc is not None:
-        dev = _item(RTBeamLimitingDeviceType="MLCX",
+        dev = _item(RTBeamLimitingDeviceType=f"MLC{mlc.axis}",
                     NumberOfLeafJawPairs=len(mlc.boundaries_mm) - 1)
         dev.LeafPositionBoundaries = [_ds(v) for v in mlc.boundaries_mm]
         devices.append(dev)
-    total = sum(s.meterset_fraction for s in b.segments)
-    cps, cum = [], 0.0
-    for seg in b.segments:
-        for w in (cum, cum + seg.meterset_fraction / total):
-            cps.append(_control_point(b, seg, len(cps), w, mlc is not None))
-        cum += seg.meterset_fraction / total
-    item = _item(BeamNumber=number, BeamName=b.name[:64], BeamType="STATIC",
-                 RadiationType="PHOTON", TreatmentMachineName="tetdose linac",
+    moving = any(not same_state(p, q) for p, q in zip(cps[:-1], cps[1:], strict=True)
+                 if q.meterset_weight > p.meterset_weight)
+    item = _item(BeamNumber=number, BeamName=b.name[:64], BeamType="DYNAMIC" if moving else
+                 "STATIC", RadiationType="PHOTON", TreatmentMachineName="tetdose linac",
                  PrimaryDosimeterUnit="MU", SourceAxisDistance=_ds(b.sad_mm),
                  TreatmentDeliveryType="TREATMENT", NumberOfWedges=0, NumberOfCompensators=0,
-                 NumberOfBoli=0, NumberOfBlocks=0, FinalCumulativeMetersetWeight="1",
+                 NumberOfBoli=0, NumberOfBlocks=0,
+                 FinalCumulativeMetersetWeight=_ds(cps[-1].meterset_weight),
                  NumberOfControlPoints=len(cps), ReferencedPatientSetupNumber=setup)
+    if b.fluence_mode != "STANDARD":
+        item.PrimaryFluenceModeSequence = [_item(FluenceMode="NON_STANDARD",
+                                                 FluenceModeID=b.fluence_mode)]
+    else:
+        item.PrimaryFluenceModeSequence = [_item(FluenceMode="STANDARD")]
     item.BeamLimitingDeviceSequence = devices
-    item.ControlPointSequence = cps
-    item.BeamDescription = f"{canonical_name(b.spectrum) or Path(b.spectrum).name} (tetdose spectrum)"
+    values = [_cp_values(b, cp) for cp in cps]
+    changing = {k for k in values[0] if any(v[k] != values[0][k] for v in values[1:])}
+    item.ControlPointSequence = [_control_point(b, v, k, changing) for k, v in enumerate(values)]
+    item.BeamDescription = (f"{canonical_name(b.spectrum) or Path(b.spectrum).name} "
+                            "(tetdose spectrum)")
     return item
 
 
-def _control_point(b: LinacBeam, seg: ControlPoint, index: int, weight: float,
-                   with_mlc: bool) -> Dataset:
+def _cp_values(b: LinacBeam, cp: ControlPoint) -> dict[str, Any]:  # noqa: ANN401
+    """The DICOM values of one control point, as strings (compared to find what changes)."""
+    out: dict[str, Any] = {
+        "GantryAngle": _ds(cp.gantry_deg % 360.0), "GantryRotationDirection": cp.gantry_rotation,
+        "BeamLimitingDeviceAngle": _ds(cp.collimator_deg % 360.0),
+        "BeamLimitingDeviceRotationDirection": cp.collimator_rotation,
+        "PatientSupportAngle": _ds(cp.couch_deg % 360.0),
+        "PatientSupportRotationDirection": cp.couch_rotation,
+        "IsocenterPosition": [_ds(v) for v in b.isocenter_at(cp)],
+        "ASYMX": [_ds(v) for v in cp.jaws_mm[:2]], "ASYMY": [_ds(v) for v in cp.jaws_mm[2:]],
+        "weight": _ds(cp.meterset_weight)}
+    if cp.mlc is not None:
+        out[f"MLC{cp.mlc.axis}"] = [_ds(v) for v in cp.mlc.positions_mm]
+    return out
+
+
+def _control_point(b: LinacBeam, values: dict[str, Any], index: int, changing: set[str]
+                   ) -> Dataset:  # noqa: ANN401
     from tetdose.plan.spectra import canonical_name
 
-    cp = _item(ControlPointIndex=index, CumulativeMetersetWeight=_ds(min(weight, 1.0)))
+    cp = _item(ControlPointIndex=index, CumulativeMetersetWeight=values["weight"])
     if index == 0:
         # A spectrum file: its highest energy stands for the nominal MV (endpoint).
         cp.NominalBeamEnergy = _ds(_NOMINAL_MV.get(str(canonical_name(b.spectrum)),
                                                    round(max(float(e) for e in b.energies_mev), 1)))
-        cp.IsocenterPosition = [_ds(v) for v in b.isocenter_mm]
         cp.TableTopEccentricAngle = "0"  # DS
         cp.TableTopPitchAngle = 0.0  # FL
         cp.TableTopRollAngle = 0.0  # FL
@@ -155,123 +183,14 @@ def _control_point(b: LinacBeam, seg: ControlPoint, index: int, weight: float,
         for key in ("TableTopVerticalPosition", "TableTopLongitudinalPosition",
                     "TableTopLateralPosition"):
             setattr(cp, key, None)
-    cp.GantryAngle = _ds(seg.gantry_deg % 360.0)
-    cp.GantryRotationDirection = "NONE"
-    cp.BeamLimitingDeviceAngle = _ds(seg.collimator_deg % 360.0)
-    cp.BeamLimitingDeviceRotationDirection = "NONE"
-    cp.PatientSupportAngle = _ds(seg.couch_deg % 360.0)
-    cp.PatientSupportRotationDirection = "NONE"
-    j = seg.jaws_mm
-    pos = [_item(RTBeamLimitingDeviceType="ASYMX", LeafJawPositions=[_ds(j[0]), _ds(j[1])]),
-           _item(RTBeamLimitingDeviceType="ASYMY", LeafJawPositions=[_ds(j[2]), _ds(j[3])])]
-    if with_mlc:
-        if seg.mlc is None:
-            raise DicomError(f"beam {b.name!r}: give every segment an MLC or none")
-        pos.append(_item(RTBeamLimitingDeviceType="MLCX",
-                         LeafJawPositions=[_ds(v) for v in seg.mlc.positions_mm]))
-    cp.BeamLimitingDevicePositionSequence = pos
+    for key in ("GantryAngle", "GantryRotationDirection", "BeamLimitingDeviceAngle",
+                "BeamLimitingDeviceRotationDirection", "PatientSupportAngle",
+                "PatientSupportRotationDirection", "IsocenterPosition"):
+        if index == 0 or key in changing:
+            setattr(cp, key, values[key])
+    devices = [_item(RTBeamLimitingDeviceType=k, LeafJawPositions=values[k])
+               for k in ("ASYMX", "ASYMY", "MLCX", "MLCY")
+               if k in values and (index == 0 or k in changing)]
+    if devices:
+        cp.BeamLimitingDevicePositionSequence = devices
     return cp
-
-
-def read_rt_plan_beams(path: str | os.PathLike[str]) -> tuple[LinacBeam, ...]:
-    """The photon treatment beams of an RT Plan (see module doc for what is read)."""
-    try:
-        ds = pydicom.dcmread(path)
-    except (OSError, InvalidDicomError) as exc:
-        raise PlanError(f"cannot read RT Plan {path}: {exc}") from None
-    if getattr(ds, "Modality", "") != "RTPLAN" or "BeamSequence" not in ds:
-        raise PlanError(f"{path} is not an RT Plan with beams (Ion and brachy plans are not "
-                        "supported)")
-    setups = {int(s.PatientSetupNumber): str(s.get("PatientPosition", "HFS"))
-              for s in ds.get("PatientSetupSequence", [])}
-    meterset = {}
-    for fg in ds.get("FractionGroupSequence", [])[:1]:
-        for rb in fg.get("ReferencedBeamSequence", []):
-            meterset[int(rb.ReferencedBeamNumber)] = float(rb.get("BeamMeterset", 1.0) or 1.0)
-    beams = [_read_beam(b, setups, meterset) for b in ds.BeamSequence
-             if b.get("TreatmentDeliveryType", "TREATMENT") == "TREATMENT"]
-    beams = [b for b in beams if b is not None]
-    if not beams:
-        raise PlanError(f"{path}: no treatment beam with meterset to compute")
-    return tuple(beams)
-
-
-def _refuse(beam: Dataset) -> None:
-    name = beam.get("BeamName", beam.get("BeamNumber", "?"))
-    if beam.get("RadiationType", "PHOTON") != "PHOTON":
-        raise PlanError(f"RT Plan beam {name!r} is {beam.RadiationType}: only photon beams are "
-                        "modelled")
-    for key in ("NumberOfWedges", "NumberOfBlocks", "NumberOfCompensators", "NumberOfBoli"):
-        if int(beam.get(key, 0) or 0) > 0:
-            raise PlanError(f"RT Plan beam {name!r} has {key[8:].lower()}: tetdose models jaws "
-                            "and MLCX only; remove them or compute this beam elsewhere")
-    for dev in beam.get("BeamLimitingDeviceSequence", []):
-        if dev.RTBeamLimitingDeviceType not in ("X", "Y", "ASYMX", "ASYMY", "MLCX"):
-            raise PlanError(f"RT Plan beam {name!r}: beam limiting device "
-                            f"{dev.RTBeamLimitingDeviceType} is not modelled (X/Y jaws, MLCX)")
-
-
-def _read_beam(beam: Dataset, setups: dict[int, str], meterset: dict[int, float]
-               ) -> LinacBeam | None:
-    _refuse(beam)
-    number = int(beam.BeamNumber)
-    if meterset.get(number, 1.0) <= 0.0:
-        return None
-    boundaries = None
-    for dev in beam.get("BeamLimitingDeviceSequence", []):
-        if dev.RTBeamLimitingDeviceType == "MLCX":
-            boundaries = [float(v) for v in dev.LeafPositionBoundaries]
-    state: dict[str, Any] = {"couch": 0.0, "coll": 0.0, "gantry": 0.0, "iso": None,
-                             "energy": None, "jaws": [-200.0, 200.0, -200.0, 200.0], "mlc": None}
-    points = []
-    for cp in beam.ControlPointSequence:
-        _update(state, cp)
-        points.append(dict(state, w=float(cp.CumulativeMetersetWeight)))
-    final = float(beam.get("FinalCumulativeMetersetWeight", points[-1]["w"]) or points[-1]["w"])
-    segs = []
-    for a, b in zip(points[:-1], points[1:], strict=True):
-        dw = (b["w"] - a["w"]) / final
-        if dw <= 0.0:
-            continue
-        mlc = None if a["mlc"] is None or boundaries is None else MLC(boundaries, a["mlc"])
-        segs.append(ControlPoint(_mean_angle(a["gantry"], b["gantry"]),
-                                 _mean_angle(a["coll"], b["coll"]),
-                                 _mean_angle(a["couch"], b["couch"]), a["jaws"], mlc, dw))
-    name = str(beam.get("BeamName", number))
-    if points[0]["iso"] is None or points[0]["energy"] is None:
-        raise PlanError(f"RT Plan beam {name!r}: the first control point lacks "
-                        "IsocenterPosition or NominalBeamEnergy")
-    if not segs:
-        return None
-    e = points[0]["energy"]
-    spectrum = "Co60" if e <= 1.5 else f"{e:g}MV"
-    return LinacBeam(name, spectrum, points[0]["iso"], tuple(segs),
-                     float(beam.get("SourceAxisDistance", 1000.0)),
-                     setups.get(int(beam.get("ReferencedPatientSetupNumber", 1)), "HFS"),
-                     meterset.get(number, 1.0))
-
-
-def _update(state: dict[str, Any], cp: Dataset) -> None:
-    """Carry a control point's attributes into ``state`` (absent ones keep their value)."""
-    for key, tag in (("gantry", "GantryAngle"), ("coll", "BeamLimitingDeviceAngle"),
-                     ("couch", "PatientSupportAngle"), ("energy", "NominalBeamEnergy")):
-        if tag in cp and cp.get(tag) is not None:
-            state[key] = float(cp.get(tag))
-    if "IsocenterPosition" in cp:
-        state["iso"] = [float(v) for v in cp.IsocenterPosition]
-    jaws = list(state["jaws"])
-    for dev in cp.get("BeamLimitingDevicePositionSequence", []):
-        kind, p = dev.RTBeamLimitingDeviceType, [float(v) for v in dev.LeafJawPositions]
-        if kind in ("X", "ASYMX"):
-            jaws[0:2] = p
-        elif kind in ("Y", "ASYMY"):
-            jaws[2:4] = p
-        elif kind == "MLCX":
-            state["mlc"] = p
-    state["jaws"] = jaws
-
-
-def _mean_angle(a_deg: float, b_deg: float) -> float:
-    """Mean of two angles along the shorter arc [deg]."""
-    d = (b_deg - a_deg + 180.0) % 360.0 - 180.0
-    return (a_deg + d / 2.0) % 360.0

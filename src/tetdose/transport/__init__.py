@@ -27,10 +27,14 @@ and sampling), :mod:`.history` (the history loop, tallies, :class:`DoseResult`),
 
 from __future__ import annotations
 
+import numpy as np
+
 from tetdose.core.image import Image
 from tetdose.core.mesh import TetMesh
+from tetdose.errors import PlanError
 from tetdose.plan.model import Plan
 from tetdose.plan.photon_source import PhotonSource
+from tetdose.plan.prescription import region_cells, region_label
 from tetdose.transport.geometry.tets import mesh_geometry, morton_order
 from tetdose.transport.geometry.world import World, as_world
 from tetdose.transport.history.result import DoseResult
@@ -47,7 +51,21 @@ def simulate(geometry: TetMesh | Image | World, plan: Plan, settings: TransportS
     """Run ``plan`` in a world: dose per tetrahedron, per voxel, or both (hybrid)."""
     world = as_world(geometry, labels)
     job, on_grid = build_job(world, plan, settings)
-    return execute(job, on_grid, plan, settings, progress)
+    return execute(job, on_grid, plan, settings, progress, target_cells(world, plan, settings))
+
+
+def target_cells(world: World, plan: Plan, settings: TransportSettings) -> np.ndarray | None:
+    """Cells (mesh order, then voxels) of the structure whose mean dose the run's
+    ``target_uncertainty`` is about: ``settings.target_region``, else the prescription's."""
+    if settings.target_uncertainty is None:
+        return None
+    name = settings.target_region
+    if name is None:
+        if plan.prescription is None:
+            raise PlanError("a target uncertainty needs a structure: give --target-region NAME "
+                            "(a [regions] name or a label), or a [prescription]")
+        name = plan.prescription.structure
+    return region_cells(world, None, region_label(name, plan.regions))
 
 
 def run_mesh_transport(mesh: TetMesh, plan: Plan, settings: TransportSettings, *,

@@ -111,6 +111,10 @@ def simulate_distributed(client: Any,  # noqa: ANN401
     workers and ``extra["task_cpu_s"]`` their workers' process CPU time (single-threaded workers: the tasks'
     own plus a little event-loop work; with several threads it includes concurrent tasks).
     """
+    each = [settings] if isinstance(settings, TransportSettings) else list(settings)
+    if any(st.target_uncertainty is not None for st in each):
+        raise PlanError("a target uncertainty stops a run in this process; on dask give the "
+                        "number of histories instead (target_uncertainty=None)")
     distributed = _distributed()
     if not isinstance(client, distributed.Client):
         raise PlanError(f"client must be a dask.distributed.Client, got {type(client).__name__}")

@@ -17,7 +17,7 @@ import numba
 import numpy as np
 from tqdm.auto import tqdm
 
-from tetdose._typing import FloatArray, IntArray
+from tetdose._typing import BoolArray, FloatArray, IntArray
 from tetdose._version import __version__
 from tetdose.core.image import ImageGrid
 from tetdose.errors import PlanError
@@ -38,7 +38,7 @@ from tetdose.transport.run.coupled import run_dose_rows
 from tetdose.transport.run.settings import TransportSettings
 from tetdose.transport.sources._sample import SourceArrays
 from tetdose.transport.sources.arrays import E_MAX_MEV, source_arrays
-from tetdose.transport.sources.particles import (
+from tetdose.transport.sources.species import (
     ParticleSources,
     particle_sources,
     refuse_in_kerma_mode,
@@ -51,6 +51,8 @@ BATCH_GROUP_PER_THREAD = 2
 PROGRESS_DELAY_S = 2.0
 #: Histories of the pilot run that checks the beams reach the world and times a history.
 PILOT_HISTORIES = 1000
+#: Fewest batches before a target uncertainty may stop a run (the batch σ needs a few).
+MIN_TARGET_BATCHES = 4
 #: A run estimated to take longer than this [s] is announced (warning) before it starts.
 LONG_RUN_S = 600.0
 #: A run estimated to take longer than this [s] (30 days) is refused: surely a typo, not a plan.
@@ -181,15 +183,51 @@ def _duration(seconds: float) -> str:
     return f"{seconds:.0f} s"
 
 
+def batch_histories(settings: TransportSettings) -> IntArray:
+    """Histories of each batch: batch b runs histories ⌊bN/B⌋ … ⌊(b+1)N/B⌋ − 1."""
+    nb = settings.n_batches
+    return np.diff(np.arange(nb + 1) * settings.n_histories // nb)
+
+
+def region_uncertainty(rows: list[Rows], per_batch: IntArray, target_cells: BoolArray) -> float:
+    """Relative standard error of the mean dose in ``target_cells`` (kernel cell order) from the
+    batch estimates x_b = E_b / n_b so far: σ/x̄ with σ² = Σ(x_b − x̄)² / (B(B − 1)) — the same
+    batch statistics as :attr:`DoseResult.dose_std_gy`, for the region's energy (its mass is
+    fixed, so the relative error of its dose is that of its energy). ∞ before two batches or
+    while the region has no energy."""
+    energy = np.concatenate([r[0][:, target_cells].sum(axis=1) for r in rows])
+    b = len(energy)
+    if b < 2:
+        return float("inf")
+    x = energy / per_batch[:b]
+    mean = x.mean()
+    if mean <= 0.0:
+        return float("inf")
+    return float(np.sqrt(((x - mean) ** 2).sum() / (b * (b - 1))) / mean)
+
+
 def execute(job: TransportJob, on_grid: MeshOnGrid | None, plan: Plan,
-            settings: TransportSettings, progress: bool | None) -> DoseResult:
-    """Check the beams reach the world and estimate the time (:func:`preflight`), run all
-    batches here in groups (so the progress bar moves) and assemble the result."""
+            settings: TransportSettings, progress: bool | None,
+            target_cells: BoolArray | None = None) -> DoseResult:
+    """Check the beams reach the world and estimate the time (:func:`preflight`), run the
+    batches here in groups (so the progress bar moves) and assemble the result.
+
+    With ``settings.target_uncertainty`` and ``target_cells`` (mask over the result's cells, mesh
+    order then voxels), the run stops after the first group whose :func:`region_uncertainty`
+    reaches the target (at least :data:`MIN_TARGET_BATCHES` batches); the result then holds the
+    batches run, and its metadata says so. More batches give a finer stop."""
     xs = cross_sections(job, settings)
     preflight(job, xs, settings, numba.get_num_threads())
     nb = settings.n_batches
+    per_batch = batch_histories(settings)
     group = BATCH_GROUP_PER_THREAD * max(1, numba.get_num_threads())
-    rows = []
+    kernel_cells = None
+    if settings.target_uncertainty is not None and target_cells is not None:
+        kernel_cells = np.asarray(target_cells, dtype=bool).copy()
+        if job.order is not None:
+            kernel_cells[:job.n_tets] = kernel_cells[:job.n_tets][job.order]
+    rows: list[Rows] = []
+    reached = None
     t0, cpu0 = time.perf_counter(), time.process_time()
     with tqdm(total=nb, unit="batch", disable=None if progress is None else not progress,
               desc=f"{job.kind} transport", delay=PROGRESS_DELAY_S) as bar:
@@ -197,8 +235,21 @@ def execute(job: TransportJob, on_grid: MeshOnGrid | None, plan: Plan,
             b1 = min(nb, b0 + group)
             rows.append(run_batches(job, xs, settings, b0, b1))
             bar.update(b1 - b0)
-    return assemble(job, on_grid, plan, settings, rows, time.perf_counter() - t0,
-                    {"cpu_s": time.process_time() - cpu0})
+            if kernel_cells is not None and b1 >= MIN_TARGET_BATCHES and b1 < nb:
+                u = region_uncertainty(rows, per_batch, kernel_cells)
+                bar.set_postfix_str(f"σ/D {100 * u:.2f} %")
+                if u <= settings.target_uncertainty:
+                    reached = b1
+                    break
+    extra: dict[str, object] = {"cpu_s": time.process_time() - cpu0}
+    if kernel_cells is not None:
+        done = reached or nb
+        extra["target"] = {"uncertainty": settings.target_uncertainty,
+                           "region": settings.target_region, "reached": reached is not None,
+                           "batches": done, "histories": int(per_batch[:done].sum()),
+                           "achieved": region_uncertainty(rows, per_batch, kernel_cells)}
+    return assemble(job, on_grid, plan, settings, rows, time.perf_counter() - t0, extra,
+                    per_batch=per_batch[:sum(len(r[0]) for r in rows)])
 
 
 def physics_record(settings: TransportSettings) -> dict[str, object]:
@@ -213,15 +264,17 @@ def physics_record(settings: TransportSettings) -> dict[str, object]:
 
 def assemble(job: TransportJob, on_grid: MeshOnGrid | None, plan: Plan,
              settings: TransportSettings, rows: list[Rows], wall_s: float,
-             extra: dict[str, object] | None = None) -> DoseResult:
-    """DoseResult from batch rows in batch order (tets moved back to mesh order)."""
+             extra: dict[str, object] | None = None, *, per_batch: IntArray | None = None
+             ) -> DoseResult:
+    """DoseResult from batch rows in batch order (tets moved back to mesh order); ``per_batch``:
+    the histories of the rows when not all of the settings' batches ran."""
     energy = np.concatenate([r[0] for r in rows])
     if job.order is not None:
         energy[:, job.order] = energy[:, :job.n_tets].copy()
     ledger = np.concatenate([r[1] for r in rows])
     counts = np.concatenate([r[2] for r in rows])
-    nb = settings.n_batches
-    per_batch = np.diff(np.arange(nb + 1) * settings.n_histories // nb)
+    if per_batch is None:
+        per_batch = batch_histories(settings)
     result = DoseResult(energy, per_batch, job.mass_g, ledger, counts, plan.particles,
                         settings.seed, settings.estimator, job.kind, wall_s, __version__,
                         job.grid, {"materials": job.names, "n_cells": len(job.mass_g),

@@ -41,6 +41,11 @@ class TransportSettings:
     estimator: str | None = None
     stream: int = 0
     max_tally_bytes: int = MAX_TALLY_BYTES
+    #: Stop once the relative standard error of the mean dose in ``target_region`` is at most this
+    #: (e.g. 0.01); ``n_histories`` is then the cap. None: run every history.
+    target_uncertainty: float | None = None
+    #: Structure of the target (a plan [regions] name or a label); None: the prescription's.
+    target_region: str | int | None = None
     physics: str = "dose"
     electron_cutoff_mev: float = ELECTRON_CUTOFF_MEV
     max_energy_loss_fraction: float = MAX_ENERGY_LOSS_FRACTION
@@ -63,6 +68,9 @@ class TransportSettings:
                                "analog" if self.physics == "dose" else "track_length")
         if self.estimator not in ESTIMATORS:
             raise PlanError(f"estimator {self.estimator!r} is unknown; use one of {ESTIMATORS}")
+        if self.target_uncertainty is not None and not 0.0 < self.target_uncertainty < 1.0:
+            raise PlanError(f"target_uncertainty is a relative standard error in (0, 1), e.g. "
+                            f"0.01 for 1 %; got {self.target_uncertainty}")
         if self.physics == "dose" and self.estimator != "analog":
             raise PlanError("physics 'dose' scores the energy electrons deposit (the analog "
                             "estimator); the track-length estimator gives kerma: use "

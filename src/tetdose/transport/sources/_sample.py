@@ -8,6 +8,16 @@ Linac: a point source at ``pos``; a rectangle r of the beam's aperture is chosen
 area_r/Σarea (cumulative ``rect_cdf``), a point (a₁, a₂) uniform in it on the isocentre plane, and
 the photon aimed at ``pos + sad·axis + a₁·e1 + a₂·e2`` (uniform fluence on that plane, see
 :mod:`tetdose.plan.beams`).
+
+Dynamic linac segment (a control-point interval in which the machine moves, see
+:mod:`tetdose.plan.segments`): the meterset fraction t ∈ [0, 1] is drawn with density
+A(t)/Ā by rejection (t uniform, accepted with probability A(t)/A_max, A the open area of the
+interpolated aperture); the machine is put at t — gantry θ₀ + t·Δθ, collimator, couch likewise,
+isocentre, jaws and leaves linearly — a leaf pair is chosen by its open area and a point
+(a₁, a₂) uniform in it; the photon starts at ``iso + sad·Z_b`` and aims at
+``iso + a₁·X_b + a₂·Y_b``, with (X_b, Y_b, Z_b) = M·R_z(−couch)·R_y(gantry)·R_z(collimator)
+(IEC 61217, :func:`tetdose.plan.beams.beam_axes`; M maps the patient support system to the
+source frame).
 """
 
 import math
@@ -17,7 +27,10 @@ from tetdose._jit import kernel
 from tetdose._random import next_uniform
 from tetdose._typing import FloatArray, IntArray
 
-PENCIL, PARALLEL, POINT, LINAC = 0, 1, 2, 3
+PENCIL, PARALLEL, POINT, LINAC, LINAC_DYNAMIC = 0, 1, 2, 3, 4
+#: Rejection tries for a dynamic segment's meterset fraction; the acceptance is Ā/A_max (> 0.1
+#: for any sensible segment), so the cap is a guard, never reached in practice.
+MAX_TRIES = 10_000
 
 
 class SourceArrays(NamedTuple):
@@ -38,6 +51,21 @@ class SourceArrays(NamedTuple):
     rect_start: IntArray  # (B + 1,) offsets into rect / rect_cdf (empty for other kinds)
     rect: FloatArray  # (R, 4) aperture rectangles [x1, x2, y1, y2] on the isocentre plane [mm]
     rect_cdf: FloatArray  # (R,) cumulative rectangle probability (by area) within each beam
+    # Dynamic linac segments (kind LINAC_DYNAMIC: control-point intervals in which the machine
+    # moves), J of them; flat fields, since numba's parallel loops take no nested tuples.
+    dyn_row: IntArray  # (B,) segment index of source row b, −1 for every other kind
+    dyn_angles: FloatArray  # (J, 6) gantry, collimator, couch at the start, then their turns [deg]
+    dyn_iso: FloatArray  # (J, 6) isocentre at the start, then at the end [mm, source frame]
+    dyn_jaws: FloatArray  # (J, 8) x1, x2, y1, y2 at the start, then at the end [mm]
+    dyn_rot: FloatArray  # (J, 3, 3) patient support system → source frame
+    dyn_leaf_start: IntArray  # (J,) offset into leaf0 / leaf1 (2N values: bank 1, then bank 2)
+    dyn_n_pairs: IntArray  # (J,) leaf pairs N (0: jaws only)
+    dyn_bnd_start: IntArray  # (J,) offset into bnd (N + 1 leaf boundaries)
+    dyn_mlc_y: IntArray  # (J,) 1: leaves travel along Y_b (MLCY), 0: along X_b (MLCX)
+    dyn_leaf0: FloatArray  # (L,) leaf positions at the start [mm]
+    dyn_leaf1: FloatArray  # (L,) leaf positions at the end [mm]
+    dyn_bnd: FloatArray  # (K,) leaf boundaries [mm]
+    dyn_max_area: FloatArray  # (J,) largest open area over the segment [mm²] (rejection bound)
 
 
 @kernel
@@ -75,6 +103,8 @@ def sample_source(src, state):
         u, v, w = u / norm, v / norm, w / norm
     elif src.kind[b] == LINAC:
         state, u, v, w = _aim_in_aperture(src, b, state)
+    elif src.kind[b] == LINAC_DYNAMIC:
+        state, x, y, z, u, v, w = _dynamic_photon(src, src.dyn_row[b], src.sad[b], state)
     return state, e, x, y, z, u, v, w
 
 
@@ -96,3 +126,96 @@ def _aim_in_aperture(src, b, state):
     w = d * src.axis[b, 2] + a1 * src.e1[b, 2] + a2 * src.e2[b, 2]
     norm = math.sqrt(u * u + v * v + w * w)
     return state, u / norm, v / norm, w / norm
+
+
+@kernel
+def _pair_rect(src, j, t, i):
+    """(x1, x2, y1, y2) [mm] of leaf pair i of dynamic segment j at fraction t, cut by the
+    jaws (x2 ≤ x1 or y2 ≤ y1: closed); without MLC the jaws."""
+    jw = src.dyn_jaws
+    x1 = jw[j, 0] + t * (jw[j, 4] - jw[j, 0])
+    x2 = jw[j, 1] + t * (jw[j, 5] - jw[j, 1])
+    y1 = jw[j, 2] + t * (jw[j, 6] - jw[j, 2])
+    y2 = jw[j, 3] + t * (jw[j, 7] - jw[j, 3])
+    n = src.dyn_n_pairs[j]
+    if n == 0:
+        return x1, x2, y1, y2
+    k = src.dyn_leaf_start[j] + i
+    lo = src.dyn_leaf0[k] + t * (src.dyn_leaf1[k] - src.dyn_leaf0[k])
+    hi = src.dyn_leaf0[k + n] + t * (src.dyn_leaf1[k + n] - src.dyn_leaf0[k + n])
+    b0, b1 = src.dyn_bnd[src.dyn_bnd_start[j] + i], src.dyn_bnd[src.dyn_bnd_start[j] + i + 1]
+    if src.dyn_mlc_y[j] == 0:
+        return max(x1, lo), min(x2, hi), max(y1, b0), min(y2, b1)
+    return max(x1, b0), min(x2, b1), max(y1, lo), min(y2, hi)
+
+
+@kernel
+def _open_area(src, j, t):
+    """Open area [mm²] of dynamic segment j at fraction t."""
+    area = 0.0
+    for i in range(max(src.dyn_n_pairs[j], 1)):
+        x1, x2, y1, y2 = _pair_rect(src, j, t, i)
+        area += max(x2 - x1, 0.0) * max(y2 - y1, 0.0)
+    return area
+
+
+@kernel
+def _point_in_aperture(src, j, t, area, state):
+    """(state, a1, a2): a point uniform over the open aperture of segment j at t [mm]."""
+    state, xi = next_uniform(state)
+    target = xi * area
+    acc = 0.0
+    x1 = x2 = y1 = y2 = 0.0
+    for i in range(max(src.dyn_n_pairs[j], 1)):
+        p1, p2, q1, q2 = _pair_rect(src, j, t, i)
+        a = max(p2 - p1, 0.0) * max(q2 - q1, 0.0)
+        if a > 0.0:
+            x1, x2, y1, y2 = p1, p2, q1, q2
+            acc += a
+            if acc > target:
+                break
+    state, r1 = next_uniform(state)
+    state, r2 = next_uniform(state)
+    return state, x1 + r1 * (x2 - x1), y1 + r2 * (y2 - y1)
+
+
+@kernel
+def _support_to_frame(rot, j, ct, st, vx, vy, vz):
+    """rot[j] · R_z(−couch) · v for a vector v of the fixed system (ct, st: cos, sin couch)."""
+    sx = ct * vx + st * vy
+    sy = -st * vx + ct * vy
+    return (rot[j, 0, 0] * sx + rot[j, 0, 1] * sy + rot[j, 0, 2] * vz,
+            rot[j, 1, 0] * sx + rot[j, 1, 1] * sy + rot[j, 1, 2] * vz,
+            rot[j, 2, 0] * sx + rot[j, 2, 1] * sy + rot[j, 2, 2] * vz)
+
+
+@kernel
+def _dynamic_photon(src, j, sad, state):
+    """(state, x, y, z, u, v, w): a photon of dynamic segment j (see module doc)."""
+    t = 0.0
+    area = 0.0
+    for _ in range(MAX_TRIES):
+        state, t = next_uniform(state)
+        area = _open_area(src, j, t)
+        state, xi = next_uniform(state)
+        if xi * src.dyn_max_area[j] < area:
+            break
+    state, a1, a2 = _point_in_aperture(src, j, t, area, state)
+    g = math.radians(src.dyn_angles[j, 0] + t * src.dyn_angles[j, 3])
+    c = math.radians(src.dyn_angles[j, 1] + t * src.dyn_angles[j, 4])
+    u = math.radians(src.dyn_angles[j, 2] + t * src.dyn_angles[j, 5])
+    cg, sg, cc, sc = math.cos(g), math.sin(g), math.cos(c), math.sin(c)
+    cu, su = math.cos(u), math.sin(u)
+    # Columns of R_y(gantry)·R_z(collimator): X_b, Y_b, Z_b in the fixed system.
+    xx, xy, xz = _support_to_frame(src.dyn_rot, j, cu, su, cg * cc, sc, -sg * cc)
+    yx, yy, yz = _support_to_frame(src.dyn_rot, j, cu, su, -cg * sc, cc, sg * sc)
+    zx, zy, zz = _support_to_frame(src.dyn_rot, j, cu, su, sg, 0.0, cg)
+    ix = src.dyn_iso[j, 0] + t * (src.dyn_iso[j, 3] - src.dyn_iso[j, 0])
+    iy = src.dyn_iso[j, 1] + t * (src.dyn_iso[j, 4] - src.dyn_iso[j, 1])
+    iz = src.dyn_iso[j, 2] + t * (src.dyn_iso[j, 5] - src.dyn_iso[j, 2])
+    dx = a1 * xx + a2 * yx - sad * zx
+    dy = a1 * xy + a2 * yy - sad * zy
+    dz = a1 * xz + a2 * yz - sad * zz
+    norm = math.sqrt(dx * dx + dy * dy + dz * dz)
+    return (state, ix + sad * zx, iy + sad * zy, iz + sad * zz, dx / norm, dy / norm,
+            dz / norm)
