@@ -361,3 +361,36 @@ def test_plan_toml_particles_and_volume_sources(tmp_path):
         Plan.from_dict({"beam": [{"type": "volume", "particle": "neutron", "energy_mev": 1.0}]})
     with pytest.raises(PlanError, match="region"):
         Plan.from_dict({"beam": [{"type": "volume", "energy_mev": 1.0, "region": "liver"}]})
+
+
+def test_volume_points_in_a_hybrid_world_follow_the_mass_outside_the_mesh():
+    """A mesh cube cutting voxels (faces off the voxel planes) inside a CT: cells are drawn by
+    mass (the voxels' mass is their part outside the mesh), and no point drawn in a voxel lies
+    inside the mesh."""
+    from tetdose.core.image import Image
+    from tetdose.transport.geometry._world import start_cell
+    from tetdose.transport.geometry.world import World, world_arrays
+    from tetdose.transport.run.job import assign_materials
+    from tetdose.transport.sources.volume import volume_arrays
+
+    grid = helpers.grid_for((0, 0, 0), (20, 20, 20), (5.0, 5.0, 5.0))
+    mesh = helpers.box_mesh((3.5, 3.5, 3.5), (13.5, 13.5, 13.5), (2, 2, 2))
+    mesh = mesh.with_data(point_data={"density": np.full(mesh.n_points, 1.5)})
+    world = World(mesh=mesh, density=Image(np.ones(grid.shape), grid))
+    plan = Plan(volume_sources=(VolumeSource("electron", (1.0,)),))
+    arrays = world_arrays(world, lambda r, reg: assign_materials(r, reg, plan))
+    frame = lambda p: grid.to_grid_frame(p)  # noqa: E731
+    vol = volume_arrays(plan.volume_sources, world, arrays, frame)
+    n = 200_000
+    got = _volume_points(arrays.geometry, vol, n)
+    cells = got[:, 0].astype(int)
+    m_tets = mesh.n_tets
+    mass = arrays.mass_g.copy()
+    mass[:m_tets] = arrays.mass_g[:m_tets][arrays.order]  # kernel order
+    p = mass / mass.sum()
+    freq = np.bincount(cells, minlength=len(mass)) / n
+    assert np.all(np.abs(freq - p) < 5 * np.sqrt(p * (1 - p) / n) + 1e-12)
+    in_voxels = got[cells >= m_tets][:3000]
+    for _c, x, y, z in in_voxels:
+        cell, *_ = start_cell(arrays.geometry, x, y, z, 0.0, 0.0, 1.0)
+        assert cell >= m_tets
