@@ -15,7 +15,7 @@ import SimpleITK as sitk
 
 from tetdose.core.calibration import HUCalibration
 from tetdose.core.image import Image
-from tetdose.core.io import write_image, write_mesh
+from tetdose.core.io import read_mesh, write_image, write_mesh
 from tetdose.dicom.ct_series import write_ct_series
 from tetdose.motion import PhaseSeries
 
@@ -153,9 +153,100 @@ def _plans(d: Path) -> None:
     (d / "bad_cal.csv").write_text("HU,density\n0,1.0\n-100,0.9\n")
 
 
+def _edit_dicom(src: Path, out: Path, **values: str) -> Path:
+    """A copy of the DICOM file ``src`` with attributes set (PatientID="B", …)."""
+    ds = pydicom.dcmread(src)
+    for keyword, value in values.items():
+        setattr(ds, keyword, value)
+    ds.save_as(out)
+    return out
+
+
+def _rtstruct(path: Path, reference: Path, names: list[str], frame_uid: str | None = None
+              ) -> Path:
+    """A minimal RT Structure Set of the CT series ``reference`` (its patient and frame unless
+    ``frame_uid``): one square ROI per name, numbered 1, 2 …, contoured on every slice."""
+    from pydicom.dataset import Dataset
+    from pydicom.uid import RTStructureSetStorage
+
+    from tetdose.dicom.modules import save, set_equipment, study_context
+
+    ctx = study_context(reference, seed="cli-rtstruct", frame_of_reference_uid=frame_uid)
+    ds = Dataset()
+    ctx.apply(ds)
+    ds.Modality, ds.SeriesInstanceUID, ds.SeriesNumber = "RTSTRUCT", "1.2.826.0.1.3680043.8.498.7", 5
+    set_equipment(ds)
+    ds.StructureSetLabel = "cli"
+    ref = Dataset()
+    ref.FrameOfReferenceUID = ctx.frame_of_reference_uid
+    ds.ReferencedFrameOfReferenceSequence = [ref]
+    ds.StructureSetROISequence, ds.ROIContourSequence = [], []
+    for number, name in enumerate(names, start=1):
+        roi = Dataset()
+        roi.ROINumber, roi.ROIName = number, name
+        roi.ReferencedFrameOfReferenceUID = ctx.frame_of_reference_uid
+        ds.StructureSetROISequence.append(roi)
+        item = Dataset()
+        item.ReferencedROINumber, item.ContourSequence = number, []
+        lo = 3.0 + 6.0 * (number - 1)
+        for z in np.arange(2.0, 13.0, 2.0):
+            c = Dataset()
+            c.ContourGeometricType, c.NumberOfContourPoints = "CLOSED_PLANAR", 4
+            c.ContourData = [f"{v:g}" for v in (lo, 3, z, lo + 9, 3, z, lo + 9, 15, z, lo, 15, z)]
+            item.ContourSequence.append(c)
+        ds.ROIContourSequence.append(item)
+    save(ds, path, RTStructureSetStorage, f"1.2.826.0.1.3680043.8.498.8.{len(names)}")
+    return path
+
+
+def _boundaries(d: Path, ct: Image) -> None:
+    """Inputs of issue 23: other patients and frames, units, label images, tiny labels."""
+    from tetdose.dicom.ct_series import write_ct_series_4d
+    from tetdose.plan.beams import ControlPoint, LinacBeam
+    from tetdose.plan.rt_plan import write_rt_plan
+    from tetdose.transport import Plan
+
+    ok = d / "dicom_ok"
+    plan = Plan(treatment_beams=(LinacBeam("AP", "6MV", (11.0, 9.0, 7.0),
+                                           (ControlPoint(0, 0, 0, (-20, 20, -20, 20)),)),))
+    write_rt_plan(plan, d / "rtplan.dcm", reference_ct=ok)
+    _edit_dicom(d / "rtplan.dcm", d / "rtplan_other_patient.dcm", PatientID="SOMEONE-ELSE")
+    _edit_dicom(d / "rtplan.dcm", d / "rtplan_other_frame.dcm",
+                FrameOfReferenceUID="1.2.826.0.1.3680043.8.498.999")
+    _plan(d, "plan_linac.toml", '[materials]\n0 = "water"\n')
+    _rtstruct(d / "rs.dcm", ok, ["GTV", "Lung"])
+    _rtstruct(d / "rs_other_frame.dcm", ok, ["GTV"], frame_uid="1.2.826.0.1.3680043.8.498.998")
+    _rtstruct(d / "rs_two_gtv.dcm", ok, ["GTV", "GTV"])
+    # a 4D-CT whose second phase belongs to another patient (and study)
+    phases = write_ct_series_4d([ct, ct], d / "ct4d_mixed", phase_percent=[0, 50])
+    for f in sorted(phases[1].iterdir()):
+        _edit_dicom(f, f, PatientID="SOMEONE-ELSE")
+    phases = write_ct_series_4d([ct, ct], d / "ct4d_two_studies", phase_percent=[0, 50])
+    for f in sorted(phases[1].iterdir()):
+        _edit_dicom(f, f, StudyInstanceUID="1.2.826.0.1.3680043.8.498.997")
+    # the mapped mesh written in metres, in a tenth of a mm (too large), and in cm
+    mapped = read_mesh(d / "mapped.vtu")
+    write_mesh(d / "mapped_in_m.vtu", mapped.moved(mapped.points_mm / 1000.0))
+    write_mesh(d / "mapped_x20.vtu", mapped.moved(mapped.points_mm * 20.0))
+    # a segmentation resampled linearly: fractions at the label borders
+    lab = (ct.array > -500).astype(np.float32)
+    lab[:, :, 5:7] = 0.5
+    write_image(d / "labels_linear.nrrd", ct.with_array(lab))
+    one = (ct.array > -500).astype(np.uint8)
+    one[4, 5, 2] = 2  # a one-voxel label, inside the background (x = 4 mm)
+    write_image(d / "labels_one_voxel.nrrd", ct.with_array(one))
+    # a prescription by D95 on the labelled half of the CT, for very few histories
+    _plan(d, "plan_rx.toml", PLAN.replace("half_angle_deg = 3.0", "half_angle_deg = 8.0")
+          + '[materials]\n0 = "lung"\n1 = "water"\n[regions]\ntissue = 1\n'
+          '[prescription]\nstructure = "tissue"\ndose_gy = 2.0\nmetric = "D95"\n')
+    (d / "not_dicom").mkdir()
+    (d / "not_dicom" / "notes.txt").write_text("not an image")
+
+
 def build(d: Path) -> Path:
     """Write every input into ``d`` (returned)."""
-    _images(d)
+    ct = _images(d)
     _meshes(d)
     _plans(d)
+    _boundaries(d, ct)
     return d

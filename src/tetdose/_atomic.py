@@ -3,8 +3,9 @@
 Outputs appear whole or not at all: a temporary path in the same folder, renamed onto the target
 only when the writer succeeds. Around that, every writer gets the same guards:
 
-- an output that *is* an input, or a folder that *contains* one, is refused (inputs are declared
-  per call with ``inputs=`` or for a whole command with :func:`output_policy`);
+- an output that *is* an input, a folder that *contains* one, or a path *inside* an input
+  folder (a DICOM series folder would no longer read as one series) is refused (inputs are
+  declared per call with ``inputs=`` or for a whole command with :func:`output_policy`);
 - a non-empty folder is replaced only if tetdose wrote it (it holds the marker file
   :data:`MARKER`), unless the caller allows it (``force=True``, or the CLI's ``--overwrite``
   through :func:`output_policy`);
@@ -12,12 +13,21 @@ only when the writer succeeds. Around that, every writer gets the same guards:
 - temporaries left by a killed run (``.NAME.PID-XXXX.part`` / ``.old`` beside the output, PID
   no longer running) are removed by the next write of the same output; a previous output caught
   between its two renames is put back first;
-- OS failures (permission denied, read-only or full disk) become one-line :class:`OutputError`.
+- OS failures (permission denied, read-only or full disk) become one-line :class:`OutputError`;
+  folders created for an output that then failed are removed again (no empty folders are left);
+- within :func:`atomic_outputs` (the CLI wraps every command in it) the outputs of one command
+  are **one set**: each is written to its temporary as usual, but the temporaries are renamed
+  into place only when the whole command succeeded — a full disk on the second of four files
+  leaves none of them;
+- notes declared with :func:`record_note` (an allowed mismatch of inputs, the unit a mesh was
+  read in) are added to every JSON record written (``*.json`` holding an object, except
+  ``figures.json``, which holds figure data).
 """
 
 from __future__ import annotations
 
 import errno
+import json
 import os
 import re
 import shutil
@@ -28,6 +38,7 @@ from contextlib import contextmanager
 from contextvars import ContextVar
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from tetdose.errors import OutputError
 
@@ -39,10 +50,15 @@ LEGACY_STALE_S = 600.0
 PathLike = str | os.PathLike[str]
 
 
+#: JSON files that hold data, not a record: no notes are added to them.
+DATA_JSON = ("figures.json",)
+
+
 @dataclass(frozen=True)
 class _Policy:
     inputs: tuple[Path, ...] = ()
     force: bool = False
+    notes: dict[str, Any] | None = None  # record notes (mutable; None: not recording)
 
 
 _POLICY: ContextVar[_Policy] = ContextVar("tetdose_output_policy",
@@ -51,13 +67,75 @@ _POLICY: ContextVar[_Policy] = ContextVar("tetdose_output_policy",
 
 @contextmanager
 def output_policy(*, inputs: Iterable[PathLike] = (), force: bool = False) -> Iterator[None]:
-    """Within the block every atomic write refuses to touch ``inputs``; ``force`` lets it
-    replace non-empty folders tetdose did not write (the CLI's ``--overwrite``)."""
-    token = _POLICY.set(_Policy(tuple(_real(p) for p in inputs), force))
+    """Within the block every atomic write refuses to touch ``inputs`` (or to write inside an
+    input folder); ``force`` lets it replace non-empty folders tetdose did not write (the CLI's
+    ``--overwrite``); :func:`record_note` notes go into every JSON record written."""
+    token = _POLICY.set(_Policy(tuple(_real(p) for p in inputs), force, {}))
     try:
         yield
     finally:
         _POLICY.reset(token)
+
+
+def record_note(key: str, value: Any) -> None:  # noqa: ANN401 - any JSON value
+    """Add ``key: value`` to every JSON record the current :func:`output_policy` block writes
+    from now on (nothing outside such a block)."""
+    notes = _POLICY.get().notes
+    if notes is not None:
+        notes[key] = value
+
+
+def recorded_notes() -> dict[str, Any]:
+    """The notes :func:`record_note` declared in the current block (a copy)."""
+    return dict(_POLICY.get().notes or {})
+
+
+@dataclass
+class _Staged:
+    """A finished temporary waiting for its rename (see :func:`atomic_outputs`)."""
+
+    commit: Callable[[], None]
+    discard: Callable[[], None]
+
+
+_STAGED: ContextVar[list[_Staged] | None] = ContextVar("tetdose_staged_outputs", default=None)
+
+
+@contextmanager
+def atomic_outputs() -> Iterator[None]:
+    """Make every output written in the block one atomic set (module docstring).
+
+    Writes whose target lies inside another write's temporary folder are not staged (the folder
+    carries them). An error (or Ctrl-C, SIGTERM) in the block removes every staged temporary and
+    the folders created for them; a reader of an output written earlier in the same block must
+    not expect it in place before the block ends.
+    """
+    staged: list[_Staged] = []
+    token = _STAGED.set(staged)
+    try:
+        yield
+    except BaseException:
+        _STAGED.reset(token)
+        for s in reversed(staged):
+            s.discard()
+        raise
+    _STAGED.reset(token)
+    for i, s in enumerate(staged):
+        try:
+            s.commit()
+        except BaseException:
+            for rest in reversed(staged[i + 1:]):
+                rest.discard()
+            raise
+
+
+def _stage_or_run(path: Path, commit: Callable[[], None], discard: Callable[[], None]) -> None:
+    """Run ``commit`` now, or stage it inside :func:`atomic_outputs`."""
+    staged = _STAGED.get()
+    if staged is None or _inside_temporary(path):
+        commit()
+    else:
+        staged.append(_Staged(commit, discard))
 
 
 def check_output_file(path: PathLike, *, suffixes: Sequence[str] | None = None,
@@ -75,6 +153,15 @@ def check_output_file(path: PathLike, *, suffixes: Sequence[str] | None = None,
         raise OutputError(f"{what} {path} has an unknown extension; end it with {shown}")
     _check_not_input(target, inputs, what, path)
     _check_parent(target, what)
+    return target
+
+
+def check_not_input(path: PathLike, *, inputs: Iterable[PathLike] = (), what: str = "output"
+                    ) -> Path:
+    """Refuse an output that is an input, holds one, or lies inside an input folder (the
+    inputs of ``inputs`` and of the current :func:`output_policy`); return it absolute."""
+    target = Path(os.path.abspath(path))
+    _check_not_input(target, inputs, what, path)
     return target
 
 
@@ -109,35 +196,53 @@ def check_output_dir(path: PathLike, *, overwrite: bool = True, force: bool = Fa
 
 @contextmanager
 def atomic_write_file(path: PathLike, *, inputs: Iterable[PathLike] = ()) -> Iterator[Path]:
-    """Yield a temporary path beside ``path``; rename it onto ``path`` only if the block succeeds.
+    """Yield a temporary path beside ``path``; rename it onto ``path`` only if the block succeeds
+    (inside :func:`atomic_outputs`: when that block succeeds).
 
     The temporary name keeps the suffix of ``path`` so that writers choosing a format by
     extension (meshio, SimpleITK) pick the right one.
     """
     path = check_output_file(path, inputs=inputs)
-    _make_parent(path)
+    created = _make_parent(path)
     _clean_stale(path)
-    suffix = "".join(path.suffixes[-2:])
-    with _os_errors(path.parent):
-        fd, tmp = tempfile.mkstemp(prefix=_temp_prefix(path), suffix=f".part{suffix}",
-                                   dir=path.parent)
+    try:
+        with _os_errors(path.parent):
+            fd, tmp = tempfile.mkstemp(prefix=_temp_prefix(path), suffix=f".part{_suffix(path)}",
+                                       dir=path.parent)
+    except BaseException:
+        _remove_empty(created)
+        raise
     os.close(fd)
     tmp_path = Path(tmp)
+
+    def discard() -> None:
+        tmp_path.unlink(missing_ok=True)
+        _remove_empty(created)
+
+    def commit() -> None:
+        try:
+            with _os_errors(path.parent):
+                _add_notes(tmp_path, path.name)
+                os.chmod(tmp_path, 0o666 & ~_umask())  # mkstemp makes 0600; give the usual mode
+                os.replace(tmp_path, path)
+        except BaseException:
+            discard()
+            raise
+
     try:
         yield tmp_path
-        with _os_errors(path.parent):
-            os.chmod(tmp_path, 0o666 & ~_umask())  # mkstemp creates 0600; give the usual mode
-            os.replace(tmp_path, path)
     except BaseException:
-        tmp_path.unlink(missing_ok=True)
+        discard()
         raise
+    _stage_or_run(path, commit, discard)
 
 
 @contextmanager
 def atomic_write_dir(path: PathLike, *, overwrite: bool = True, force: bool = False,
                      inputs: Iterable[PathLike] = (), marker: bool = True,
                      owned: Callable[[Path], bool] | None = None) -> Iterator[Path]:
-    """Yield a temporary folder beside ``path``; it replaces ``path`` only if the block succeeds.
+    """Yield a temporary folder beside ``path``; it replaces ``path`` only if the block succeeds
+    (inside :func:`atomic_outputs`: when that block succeeds).
 
     A failure (or Ctrl-C) removes the temporary folder, so no half-written series is left behind.
     An existing folder is replaced if it is empty or tetdose wrote it (``overwrite``; any folder
@@ -146,26 +251,64 @@ def atomic_write_dir(path: PathLike, *, overwrite: bool = True, force: bool = Fa
     recognises a previous output by its contents, see :func:`check_output_dir`).
     """
     path = check_output_dir(path, overwrite=overwrite, force=force, inputs=inputs, owned=owned)
-    _make_parent(path)
+    created = _make_parent(path)
     _clean_stale(path)
-    with _os_errors(path.parent):
-        tmp = Path(tempfile.mkdtemp(prefix=_temp_prefix(path), suffix=".part", dir=path.parent))
+    try:
+        with _os_errors(path.parent):
+            tmp = Path(tempfile.mkdtemp(prefix=_temp_prefix(path), suffix=".part",
+                                        dir=path.parent))
+    except BaseException:
+        _remove_empty(created)
+        raise
+
+    def discard() -> None:
+        shutil.rmtree(tmp, ignore_errors=True)
+        _remove_empty(created)
+
+    def commit() -> None:
+        try:
+            with _os_errors(path.parent):
+                for record in sorted(tmp.rglob("*.json")):
+                    _add_notes(record, record.name)
+                if marker and not _inside_temporary(path):
+                    (tmp / MARKER).write_text("written by tetdose; it may replace this folder "
+                                              "as a whole\n")
+                if path.exists():
+                    old = Path(tempfile.mkdtemp(prefix=_temp_prefix(path), suffix=".old",
+                                                dir=path.parent))
+                    os.replace(path, old / "x")
+                    os.replace(tmp, path)
+                    shutil.rmtree(old, ignore_errors=True)
+                else:
+                    os.replace(tmp, path)
+        except BaseException:
+            discard()
+            raise
+
     try:
         yield tmp
-        if marker and not _inside_temporary(path):
-            (tmp / MARKER).write_text("written by tetdose; it may replace this folder as a whole\n")
-        with _os_errors(path.parent):
-            if path.exists():
-                old = Path(tempfile.mkdtemp(prefix=_temp_prefix(path), suffix=".old",
-                                            dir=path.parent))
-                os.replace(path, old / "x")
-                os.replace(tmp, path)
-                shutil.rmtree(old, ignore_errors=True)
-            else:
-                os.replace(tmp, path)
     except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
+        discard()
         raise
+    _stage_or_run(path, commit, discard)
+
+
+def _suffix(path: Path) -> str:
+    return "".join(path.suffixes[-2:])
+
+
+def _add_notes(record: Path, name: str) -> None:
+    """Merge the policy's notes into the JSON object in ``record`` (see :func:`record_note`)."""
+    notes = _POLICY.get().notes
+    if not notes or not name.lower().endswith(".json") or name in DATA_JSON:
+        return
+    try:
+        doc = json.loads(record.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return
+    if isinstance(doc, dict):
+        doc.update(notes)
+        record.write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
 
 
 def _real(p: PathLike) -> Path:
@@ -181,6 +324,10 @@ def _check_not_input(target: Path, inputs: Iterable[PathLike], what: str, given:
         if real in p.parents:
             raise OutputError(f"{what} {given} holds the input {p} and would replace it; "
                               "write to another folder")
+        if p in real.parents and p.is_dir():
+            raise OutputError(f"{what} {given} lies inside the input folder {p} (tetdose never "
+                              "writes into an input folder: a DICOM series there would no longer "
+                              "read as one series); write outside it")
 
 
 def _check_parent(target: Path, what: str) -> None:
@@ -195,9 +342,29 @@ def _check_parent(target: Path, what: str) -> None:
                           "can write to")
 
 
-def _make_parent(path: Path) -> None:
-    with _os_errors(path.parent):
-        path.parent.mkdir(parents=True, exist_ok=True)
+def _make_parent(path: Path) -> list[Path]:
+    """Create the missing folders above ``path``; return them, deepest first."""
+    missing = []
+    parent = path.parent
+    while not parent.exists() and parent != parent.parent:
+        missing.append(parent)
+        parent = parent.parent
+    try:
+        with _os_errors(path.parent):
+            path.parent.mkdir(parents=True, exist_ok=True)
+    except BaseException:
+        _remove_empty(missing)
+        raise
+    return missing
+
+
+def _remove_empty(folders: Sequence[Path]) -> None:
+    """Remove ``folders`` (deepest first) while they are empty."""
+    for folder in folders:
+        try:
+            folder.rmdir()
+        except OSError:
+            return
 
 
 @contextmanager

@@ -58,6 +58,12 @@ EXPORT = ["export-dose", "-q", "--dose", "{d}/dose.vtu", "--like", "{d}/ct.nrrd"
 REG = ["register", "-q", "--4dct", "{d}/ct.nrrd", "{d}/ct_coarse.nrrd", "--reference", "0", "-o",
        "{o}/reg"]
 EVAL = ["evaluate", "-q", "--ct", "{d}/ct.nrrd", "--mesh", "{d}/mapped.vtu", "-o", "{o}/report"]
+DOSE_RT = ["dose", "-q", "--ct", "{d}/dicom_ok", "--rtplan", "{d}/rtplan.dcm", "--histories",
+           "2000", "--batches", "2", "-o", "{o}/dose.nrrd"]
+HYBRID = DOSE + ["--ct", "{d}/ct.nrrd"]
+MESH = ["mesh", "-q", "--labels", "{d}/labels.nrrd", "-o", "{o}/m.vtu"]
+MESH_RS = ["mesh", "-q", "--structures", "{d}/rs.dcm", "--roi", "GTV", "--ct", "{d}/dicom_ok",
+           "-o", "{o}/m.vtu"]
 
 CASES = [
     # --- map: meshes
@@ -208,6 +214,53 @@ CASES = [
     ("register-smoothing-negative", REG + ["--smoothing-mm", "-1"], ["--smoothing-mm"]),
     ("register-threads-zero", REG + ["--threads", "0"], ["--threads", "≥ 1"]),
     ("register-output-is-input", REG[:-1] + ["{d}"], ["holds the input"]),
+    # --- issue 23: one patient, one frame (checked before any work)
+    ("dose-rtplan-other-patient", _with(DOSE_RT, rtplan="{d}/rtplan_other_patient.dcm"),
+     ["PatientID differs", "SOMEONE-ELSE", "RT Plan", "--allow-frame-mismatch"]),
+    ("dose-rtplan-other-frame", _with(DOSE_RT, rtplan="{d}/rtplan_other_frame.dcm"),
+     ["FrameOfReferenceUID differs", "1.2.826.0.1.3680043.8.498.999", "--allow-frame-mismatch"]),
+    ("mesh-rtstruct-other-frame", _with(MESH_RS, structures="{d}/rs_other_frame.dcm"),
+     ["FrameOfReferenceUID differs", "RT Structure Set", "--allow-frame-mismatch"]),
+    ("register-4dct-two-patients", _with(REG, **{"4dct": "{d}/ct4d_mixed"})[:4] + REG[5:],
+     ["PatientID differs", "SOMEONE-ELSE", "4D-CT 50%", "--allow-frame-mismatch"]),
+    ("dose4d-ct4d-two-studies", DOSE4D + ["--ct4d", "{d}/ct4d_two_studies"],
+     ["StudyInstanceUID differs", "one study", "--allow-frame-mismatch"]),
+    # --- units and placement of a mesh
+    ("map-mesh-in-metres", _map(mesh="{d}/mapped_in_m.vtu"), ["metres", "--mesh-unit m"]),
+    ("voxelize-mesh-in-metres", _with(VOX, mesh="{d}/mapped_in_m.vtu"),
+     ["one voxel", "metres", "--mesh-unit m"]),
+    ("dose-hybrid-mesh-in-metres", _with(HYBRID, mesh="{d}/mapped_in_m.vtu"),
+     ["metres", "--mesh-unit m"]),
+    ("dose-hybrid-mesh-20x", _with(HYBRID, mesh="{d}/mapped_x20.vtu"), ["15×", "not in mm"]),
+    ("map-mesh-unit-wrong", _map(mesh="{d}/mapped.vtu") + ["--mesh-unit", "m"],
+     ["read as m", "not in mm"]),
+    # --- label images: whole numbers only, everywhere
+    ("dose-labels-fractional", DOSE_CT + ["--labels", "{d}/labels_linear.nrrd"],
+     ["non-integer", "0.5", "nearest-neighbour"]),
+    ("mesh-labels-fractional", _with(MESH, labels="{d}/labels_linear.nrrd"),
+     ["non-integer", "nearest-neighbour"]),
+    ("compare-structures-fractional", CMP + ["--structures", "{d}/labels_linear.nrrd"],
+     ["non-integer", "nearest-neighbour"]),
+    # --- bounded meshing
+    ("mesh-one-voxel-label", _with(MESH, labels="{d}/labels_one_voxel.nrrd"),
+     ["label 2 has 1 voxel", "too small", "--label"]),
+    ("mesh-size-unbounded", MESH + ["--size-mm", "0.1"], ["GB of memory", "--force"]),
+    ("mesh-over-time-limit", MESH + ["--max-minutes", "0.001"], ["--max-minutes", "--force"]),
+    ("mesh-two-rois-one-name", _with(MESH_RS, structures="{d}/rs_two_gtv.dcm"),
+     ["2 ROIs named 'GTV'", "--roi 'GTV (2)'"]),
+    # --- outputs: checked before any work, never inside an input folder
+    ("export-dose-into-ct-series", _with(EXPORT, like="{d}/dicom_ok")[:-1]
+     + ["{d}/dicom_ok/rd.dcm"], ["inside the input folder", "DICOM series"]),
+    ("dose-image-beside-is-input", HYBRID[:-3] + ["{d}/ct.vtu"] + HYBRID[-2:],
+     ["also writes ct.nrrd beside it", "also an input"]),
+    ("dose-nested-output-folders", _with(DOSE, mesh="{d}/inverted_mapped.vtu")[:-1]
+     + ["{o}/new/deeper/dose.vtu"], ["inverted"]),
+    ("map-ct-folder-without-dicom", _map(ct="{d}/not_dicom"), ["holds no DICOM image series"]),
+    # --- honest messages
+    ("dose-prescription-too-few-histories", _with(DOSE_CT, plan="{d}/plan_rx.toml",
+                                                  histories="30")
+     + ["--labels", "{d}/labels.nrrd", "-q"],
+     ["too few histories", "% of the structure 'tissue' scored nothing", "raise --histories"]),
 ]
 
 

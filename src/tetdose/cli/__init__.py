@@ -5,8 +5,17 @@ This is the only layer that prints or exits. Every expected failure — a
 :class:`~tetdose.errors.TetdoseError`, a bad option, a missing or unwritable file, a full disk —
 becomes one line ``tetdose COMMAND: error: …`` on stderr and exit code 2 (a traceback only with
 ``--debug``); warnings print as one line ``tetdose COMMAND: warning: …``. While a command runs,
-every path it is given that exists is declared an input: no atomic write may replace it
-(see :func:`tetdose._atomic.output_policy`).
+every path it is given that exists is declared an input: no atomic write may replace it or write
+inside it (see :func:`tetdose._atomic.output_policy`).
+
+Before any work, every command (see :func:`main`): checks its outputs (not an input, not inside
+an input folder, a writable place); checks that its DICOM inputs belong to one patient and one
+frame of reference (:mod:`tetdose.dicom.identity`; ``--allow-frame-mismatch`` warns instead and
+records it in every JSON written). While it runs: meshes are read in ``--mesh-unit`` and checked
+against the images read (:func:`tetdose.core.io.mesh_unit_policy`); all outputs of the command
+are one atomic set (:func:`tetdose._atomic.atomic_outputs`); Ctrl-C (exit 130) and SIGTERM (exit
+143) end it with the line ``tetdose COMMAND: interrupted; no partial output was kept``, and an
+error leaves no folder it created.
 """
 
 from __future__ import annotations
@@ -15,7 +24,9 @@ import argparse
 import errno
 import importlib
 import os
+import signal
 import sys
+import threading
 import traceback
 import warnings
 from collections.abc import Iterator, Sequence
@@ -23,7 +34,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import NoReturn
 
-from tetdose._atomic import output_policy
+from tetdose._atomic import atomic_outputs, output_policy
 from tetdose._version import __version__
 from tetdose.errors import TetdoseError
 
@@ -58,6 +69,22 @@ FOLDER_OUTPUTS = ("deform", "register", "4dct", "compare", "dose4d", "demo", "ph
 CT_READERS = ("map", "voxelize", "evaluate", "deform", "register", "4dct", "dose", "export-dose",
               "dose4d", "mesh")
 
+#: Commands without input files; every other one checks its DICOM inputs (one patient, one
+#: frame) and takes --allow-frame-mismatch.
+NO_INPUTS = ("demo", "phantom")
+
+#: Commands that read a mesh beside an image: they take --mesh-unit.
+MESH_READERS = ("map", "voxelize", "evaluate", "deform", "4dct", "dose", "dose4d", "compare",
+                "export-dose")
+
+#: Exit codes of an interrupted command: Ctrl-C (SIGINT) and SIGTERM (128 + signal number).
+EXIT_SIGINT, EXIT_SIGTERM = 130, 143
+
+
+class Terminated(BaseException):
+    """SIGTERM arrived: unwinds like Ctrl-C (temporaries removed), exit code 143."""
+
+
 DESCRIPTION = ("CT density on deformable tetrahedral meshes: mass-conserving mapping, breathing "
                "phases, virtual 4D-CT and Monte Carlo photon dose.")
 
@@ -87,6 +114,16 @@ def build_parser() -> argparse.ArgumentParser:
                            help="resample a DICOM CT series with a gantry tilt or sheared grid "
                                 "onto an orthogonal grid (linear, -1000 HU outside) instead of "
                                 "refusing it")
+        if name not in NO_INPUTS:
+            p.add_argument("--allow-frame-mismatch", action="store_true",
+                           help="combine DICOM inputs whose PatientID, FrameOfReferenceUID (or, "
+                                "for 4D-CT phases, StudyInstanceUID) differ, with a warning "
+                                "recorded in every JSON output, instead of refusing them")
+        if name in MESH_READERS:
+            p.add_argument("--mesh-unit", choices=("mm", "cm", "m"), default=None,
+                           help="unit of the mesh coordinates (default: mm, and a mesh whose "
+                                "size or placement does not fit the image is refused with its "
+                                "likely unit)")
         if name in FOLDER_OUTPUTS and "--overwrite" not in p._option_string_actions:  # noqa: SLF001
             p.add_argument("--overwrite", action="store_true",
                            help="replace the output folder even if tetdose did not write it")
@@ -100,14 +137,26 @@ def main(argv: Sequence[str] | None = None) -> int:
     except SystemExit as exc:  # --help, --version, or a usage error already printed
         return exc.code if isinstance(exc.code, int) else 2
     prefix = f"tetdose {args.command}"
-    from tetdose.core.io import tilted_policy
+    from tetdose.core.io import mesh_unit_policy, tilted_policy
+    from tetdose.dicom.identity import check_inputs, frame_policy
 
+    created = _missing_folders(getattr(args, "output", None))
+    code = 2
     try:
-        with _one_line_warnings(prefix), \
+        with _one_line_warnings(prefix), _sigterm_raises(), \
                 tilted_policy(bool(getattr(args, "resample_tilted", False))), \
                 output_policy(inputs=_input_paths(args), force=bool(getattr(args, "overwrite",
-                                                                            False))):
-            return int(importlib.import_module(args._module).run(args))
+                                                                            False))), \
+                frame_policy(bool(getattr(args, "allow_frame_mismatch", False))), \
+                mesh_unit_policy(getattr(args, "mesh_unit", None)):
+            from tetdose.cli._common import check_outputs_first
+
+            module = importlib.import_module(args._module)
+            check_outputs_first(args, module)
+            check_inputs(_input_paths(args))
+            with atomic_outputs():
+                code = int(module.run(args))
+            return code
     except TetdoseError as exc:
         return _fail(prefix, str(exc), args.debug)
     except OSError as exc:
@@ -117,7 +166,53 @@ def main(argv: Sequence[str] | None = None) -> int:
         return _fail(prefix, message, args.debug)
     except KeyboardInterrupt:
         print(f"{prefix}: interrupted; no partial output was kept", file=sys.stderr)
-        return 130
+        return EXIT_SIGINT
+    except Terminated:
+        print(f"{prefix}: interrupted; no partial output was kept", file=sys.stderr)
+        return EXIT_SIGTERM
+    finally:
+        if code != 0:
+            _remove_empty(created)
+
+
+@contextmanager
+def _sigterm_raises() -> Iterator[None]:
+    """SIGTERM raises :class:`Terminated` in the main thread during the block (so atomic writes
+    clean up and the command exits 143), then the previous handler is back."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum, frame):  # noqa: ANN001, ANN202, ARG001
+        raise Terminated
+
+    previous = signal.signal(signal.SIGTERM, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _missing_folders(output: object) -> list[Path]:
+    """The folders of ``output`` (itself included) that do not exist yet, deepest first."""
+    if not isinstance(output, str | os.PathLike) or not str(output):
+        return []
+    missing = []
+    p = Path(os.path.abspath(output))
+    while not p.exists() and p != p.parent:
+        missing.append(p)
+        p = p.parent
+    return missing
+
+
+def _remove_empty(folders: Sequence[Path]) -> None:
+    """Remove the folders (deepest first) that a failed command created and left empty."""
+    for folder in folders:
+        try:
+            if folder.is_dir() and not any(folder.iterdir()):
+                folder.rmdir()
+        except OSError:
+            return
 
 
 def _fail(prefix: str, message: str, debug: bool) -> int:

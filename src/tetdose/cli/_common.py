@@ -8,12 +8,12 @@ import math
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from tetdose._atomic import check_output_dir, check_output_file
+from tetdose._atomic import check_not_input, check_output_dir, check_output_file
 from tetdose._checks import check_density
 from tetdose.core.calibration import HUCalibration
 from tetdose.core.io import read_mesh
 from tetdose.core.mesh import TetMesh
-from tetdose.errors import MeshError
+from tetdose.errors import MeshError, OutputError
 
 
 def add_calibration_arg(parser: argparse.ArgumentParser) -> None:
@@ -43,6 +43,41 @@ def check_output(args: argparse.Namespace, *, suffixes: Sequence[str] | None = N
         return check_output_dir(args.output, force=bool(getattr(args, "overwrite", False)),
                                 what="-o folder")
     return check_output_file(args.output, suffixes=suffixes, what="-o")
+
+
+#: Commands whose ``-o`` is a file (the others write a folder).
+FILE_OUTPUTS = ("map", "voxelize", "dose", "export-dose", "mesh")
+
+
+def output_files(args: argparse.Namespace, module: object = None) -> list[Path]:
+    """The files a command writes: ``-o`` first, then those its module's ``output_files(args)``
+    names beside it (``dose``: images and the JSON record; ``mesh``: the checks JSON); ``[]``
+    without ``-o``."""
+    output = getattr(args, "output", None)
+    if output is None or not str(output):
+        return []
+    more = getattr(module, "output_files", None)
+    files = [Path(output), *(more(args) if callable(more) else [])]
+    return list(dict.fromkeys(files))
+
+
+def check_outputs_first(args: argparse.Namespace, module: object = None) -> None:
+    """Before any work: no output of the command (see :func:`output_files`) is, holds or lies
+    inside one of its inputs, and the files it writes beside ``-o`` can be written (see
+    :mod:`tetdose._atomic`)."""
+    files = output_files(args, module)
+    for i, path in enumerate(files):
+        if i == 0:
+            if args.command in FILE_OUTPUTS:
+                check_output_file(path, what="-o")
+            else:
+                check_not_input(path, what="-o")
+            continue
+        try:
+            check_output_file(path, what="that file")
+        except OutputError as exc:
+            raise OutputError(f"-o {files[0]} also writes {path.name} beside it, and {exc}"
+                              ) from exc
 
 
 def int_at_least(low: int) -> Callable[[str], int]:

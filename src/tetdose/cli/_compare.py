@@ -11,7 +11,13 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from tetdose.cli._common import check_output, float_in, int_at_least
+from tetdose.cli._common import (
+    add_calibration_arg,
+    calibration_from,
+    check_output,
+    float_in,
+    int_at_least,
+)
 from tetdose.errors import TetdoseError
 
 MESH_SUFFIXES = (".vtu", ".vtk", ".xdmf", ".msh")
@@ -35,6 +41,10 @@ def add_args(parser: argparse.ArgumentParser) -> None:
                         help="dose image (.nrrd …) or a folder holding accumulated.nrrd")
     parser.add_argument("--structures", type=Path,
                         help="label image (0 = background) or a DICOM RTSTRUCT file")
+    parser.add_argument("--ct", type=Path,
+                        help="the CT of the voxel dose (on its grid): the voxel regions' masses "
+                             "for the DVH table (default: estimated from the mesh's densities)")
+    add_calibration_arg(parser)
     parser.add_argument("--reference", choices=("voxel", "mesh"), default="voxel",
                         help="which dose is the gamma reference (default voxel)")
     parser.add_argument("--threshold", type=float_in(0.0, 100.0, high_open=True), default=10.0,
@@ -70,7 +80,7 @@ def _run_compare(args: argparse.Namespace) -> int:
         read_structure_masks,
         recorded_dose_unit,
     )
-    from tetdose.core.io import read_image
+    from tetdose.core.io import read_ct, read_image
 
     check_output(args, folder=True)
     mesh_path = _find(args.mesh_dose, "accumulated", MESH_SUFFIXES, "mesh")
@@ -78,18 +88,36 @@ def _run_compare(args: argparse.Namespace) -> int:
     voxel = read_image(_find(args.voxel_dose, "accumulated", (".nrrd", ".mha", ".nii.gz"),
                              "dose image"))
     masks = read_structure_masks(args.structures, voxel.grid) if args.structures else None
+    density = None
+    if args.ct is not None:
+        ct = read_ct(args.ct)
+        density = ct.with_array(calibration_from(args).density(ct.array).astype(float))
     result = compare_doses(mesh, dose, voxel, structures=masks, reference=args.reference,
                            threshold_percent=args.threshold,
                            gamma_max_points=args.gamma_max_points,
-                           unit=recorded_dose_unit(mesh_path))
+                           unit=recorded_dose_unit(mesh_path), density=density)
     result.write(args.output)
     reg = result.summary["region"]
     print(f"compared where both doses exist: {reg['voxels']} voxels ({reg['volume_cm3']:.1f} "
           "cm³) at least half inside the mesh")
     for name, g in result.summary["gamma"].items():
         print(f"gamma {name}: {g['pass_rate_percent']:.2f} % pass")
+    for name, row in result.summary["dvh"].items():
+        print(_dvh_line(name, row))
     print(f"report → {args.output / 'report.html'}")
     return 0
+
+
+def _dvh_line(name: str, row: dict) -> str:
+    """One line per DVH: each side's region (volume, mass) and means, and the region note."""
+    def side(what: str, d: dict) -> str:
+        mass = f", {d['mass_g']:.4g} g" if "mass_g" in d else ""
+        by_mass = f" (by mass {d['Dmean_mass_weighted']:.4g})" if "Dmean_mass_weighted" in d \
+            else ""
+        return f"{what} {d['volume_cm3']:.4g} cm³{mass}: mean {d['Dmean']:.4g}{by_mass}"
+
+    note = f"; note: {row['note']}" if "note" in row else ""
+    return f"DVH {name}: {side('tets', row['mesh'])}; {side('voxels', row['voxel'])}{note}"
 
 
 def _run_export(args: argparse.Namespace) -> int:

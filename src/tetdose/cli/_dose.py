@@ -145,6 +145,19 @@ def record_path(output: Path) -> Path:
     return output.with_name(output.name.split(".")[0] + ".json")
 
 
+def output_files(args: argparse.Namespace) -> list[Path]:
+    """The files ``run`` writes beside ``-o`` (checked before any work, written as one set with
+    it): the images, the JSON record."""
+    out = Path(args.output)
+    files: list[Path] = []
+    if args.ct is not None:
+        image = _sibling(out, ext="nrrd") if args.mesh is not None else out
+        files += [image, _sibling(image, "_std")]
+        if args.mesh is not None:
+            files.append(_sibling(out, "_voxels", "nrrd"))
+    return list(dict.fromkeys([*files, record_path(out)]))
+
+
 def _sibling(output: Path, suffix: str = "", ext: str | None = None) -> Path:
     """``dose_std.nrrd`` for ``dose.nrrd`` (suffix "_std"); ``dose.nrrd`` for ``dose.vtu``
     (ext "nrrd")."""
@@ -163,7 +176,7 @@ def _write_images(result: Any, output: Path) -> list[str]:  # noqa: ANN401
 
 
 def run(args: argparse.Namespace) -> int:
-    from tetdose.core.io import read_ct, read_image, write_image, write_mesh
+    from tetdose.core.io import read_ct, read_labels, write_image, write_mesh
     from tetdose.dose.absolute import absolute_result
     from tetdose.transport import World
     from tetdose.transport.run.distributed import simulate_on
@@ -189,7 +202,7 @@ def run(args: argparse.Namespace) -> int:
         ct = read_ct(args.ct)
         cal = calibration_from(args)
         density = ct.with_array(cal.density(ct.array).astype(np.float64))
-        labels = read_image(args.labels) if args.labels else None
+        labels = read_labels(args.labels) if args.labels else None
         extra.update(ct=str(args.ct), calibration=cal.name)
     world = World(mesh=mesh, density=density, labels=labels)
     plan = plan.resolved(world)

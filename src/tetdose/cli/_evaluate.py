@@ -17,7 +17,7 @@ import numpy as np
 
 from tetdose._atomic import atomic_write_file
 from tetdose.cli._common import add_calibration_arg, calibration_from, read_mapped_mesh
-from tetdose.core.io import read_image, write_image
+from tetdose.core.io import read_image, read_labels, write_image
 from tetdose.errors import ImageError, TetdoseError
 from tetdose.mapping.figures import plot_evaluation
 from tetdose.mapping.metrics import evaluate
@@ -47,7 +47,7 @@ def run(args: argparse.Namespace) -> int:
     ct = read_image(args.ct)
     roi = None
     if args.mask:
-        roi = _roi_from_mask(read_image(args.mask), ct, args.label)
+        roi = _roi_from_mask(read_labels(args.mask, f"--mask {args.mask}"), ct, args.label)
     ev = evaluate(ct, mesh, np.asarray(mesh.point_data["density"]),
                   calibration=calibration_from(args), roi=roi)
     out = Path(args.output)
@@ -80,7 +80,7 @@ def _run_phases(args: argparse.Namespace) -> int:
     rows = []
     for k, pct in enumerate(series.phase_percent):
         real = ct_phases[find_phase(ct_phases, float(pct))]
-        roi = None if not args.mask else _roi_from_mask(read_image(args.mask), real.image,
+        roi = None if not args.mask else _roi_from_mask(read_labels(args.mask), real.image,
                                                         args.label)
         ev = evaluate(real.image, series.mesh(k), series.density_g_cm3[k],
                       calibration=calibration, roi=roi)

@@ -1,5 +1,10 @@
 """``tetdose mesh --labels L [--label N …] [--size-mm 2=8,3=3] [--body auto|N] -o mesh.vtu``:
-one conforming tetrahedral mesh of the labels (MMG), with checks printed and written as JSON."""
+one conforming tetrahedral mesh of the labels (MMG), with checks printed and written as JSON.
+
+MMG runs in a child process (:mod:`tetdose.meshing.worker`): progress is printed per stage and
+per cut of labels, with an estimate first; a job whose estimate exceeds the available memory or
+``--max-minutes`` is refused before MMG runs unless ``--force``; Ctrl-C / SIGTERM stop it at
+once (exit 130 / 143, nothing written)."""
 
 from __future__ import annotations
 
@@ -9,6 +14,9 @@ import math
 from pathlib import Path
 
 from tetdose.errors import TetdoseError
+
+#: Default time limit of a meshing job [min] (the estimate of :func:`tetdose.meshing.mmg.estimate`).
+DEFAULT_MAX_MINUTES = 120.0
 
 
 def add_args(parser: argparse.ArgumentParser) -> None:
@@ -36,6 +44,11 @@ def add_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--smooth", type=float, default=None, metavar="SIGMA",
                         help="Gaussian blur in voxels (mmg: of the distance fields, default "
                              "0.75; gmsh: of each mask before marching cubes, default 0)")
+    parser.add_argument("--max-minutes", type=float, default=DEFAULT_MAX_MINUTES, metavar="MIN",
+                        help="refuse a job estimated to take longer (default "
+                             f"{DEFAULT_MAX_MINUTES:g}); the memory limit is what is available")
+    parser.add_argument("--force", action="store_true",
+                        help="run even if the estimate exceeds the time or memory limit")
     parser.add_argument("-o", "--output", required=True, metavar="MESH",
                         help="output mesh (VTU recommended), cell_data region = label; the "
                              "checks go to MESH's name + .checks.json")
@@ -92,14 +105,21 @@ def run(args: argparse.Namespace) -> int:
     from tetdose._atomic import atomic_write_file
     from tetdose.cli._common import check_output
     from tetdose.core.io import MESH_SUFFIXES, write_mesh
-    from tetdose.meshing import conforming_mesh, mesh_checks, mesh_label_image
+    from tetdose.meshing import mesh_checks, mesh_label_image
 
     check_output(args, suffixes=MESH_SUFFIXES)
     sizes = parse_sizes(args.size_mm)
+    if not (math.isfinite(args.max_minutes) and args.max_minutes > 0):
+        raise TetdoseError(f"--max-minutes must be a number > 0, got {args.max_minutes:g}")
     labels, ids, names = _inputs(args)
     if args.mesher == "mmg":
+        from tetdose.meshing.mmg import Budget, available_memory_bytes
+        from tetdose.meshing.worker import mesh_in_child
+
         smooth = 0.75 if args.smooth is None else args.smooth
-        mesh = conforming_mesh(labels, ids, sizes, smoothing_vox=smooth)
+        budget = None if args.force else Budget(60.0 * args.max_minutes, available_memory_bytes())
+        mesh = mesh_in_child(labels, ids, sizes, smoothing_vox=smooth, budget=budget,
+                             on_progress=None if args.quiet else _progress)
     else:
         if isinstance(sizes, dict):
             raise TetdoseError("--mesher gmsh takes one --size-mm for all labels")
@@ -109,11 +129,44 @@ def run(args: argparse.Namespace) -> int:
     path = write_mesh(args.output, mesh)
     report["mesher"] = args.mesher
     report["names"] = {str(k): v for k, v in names.items()}
-    json_path = path.with_name(path.name.rsplit(".", 1)[0] + ".checks.json")
+    json_path = checks_path(path)
     with atomic_write_file(json_path) as tmp:
         Path(tmp).write_text(json.dumps(report, indent=2) + "\n")
     _print(report, names, path, json_path)
     return 0
+
+
+def _progress(event: str, info: dict) -> None:
+    """One line on stderr per meshing stage and per cut (see tetdose.meshing.mmg.Progress)."""
+    import sys
+
+    from tetdose.meshing.mmg import MeshingEstimate, duration_text
+
+    if event == "start":
+        est = MeshingEstimate(**info["estimate"])
+        line = f"{info['labels']} labels: {est.describe()} (estimate)"
+    elif event == "background":
+        line = f"background mesh: {info['tets']} tets"
+    elif event == "cut":
+        labels = ", ".join(str(lab) for lab in info["labels"])
+        line = (f"cut label{'s' * (len(info['labels']) > 1)} {labels}: {info['done']}/"
+                f"{info['total']} labels in {duration_text(info['elapsed_s'])}, about "
+                f"{duration_text(info['left_s'])} of cutting left")
+    elif event == "remesh":
+        line = f"remeshing {info['tets']} tets to the target sizes, then the sliver pass"
+    else:
+        return
+    print(f"tetdose mesh: {line}", file=sys.stderr, flush=True)
+
+
+def output_files(args: argparse.Namespace) -> list[Path]:
+    """The file ``run`` writes beside ``-o``: the checks JSON."""
+    return [checks_path(Path(args.output))]
+
+
+def checks_path(output: Path) -> Path:
+    """``mesh.checks.json`` beside ``mesh.vtu``."""
+    return output.with_name(output.name.rsplit(".", 1)[0] + ".checks.json")
 
 
 def _print(report: dict, names: dict[int, str], path: Path, json_path: Path) -> None:

@@ -7,8 +7,20 @@ is evaluated where both doses are defined — the voxels at least half inside th
 (:func:`half_inside`) — with the reference maximum taken there too. Then: gamma maps for each
 criterion of :data:`CRITERIA` (on a seeded sample of at most ``gamma_max_points`` points, and on
 the axial slice through the reference maximum for the figure), DVHs per structure (a tet belongs
-to a structure when the voxel holding its centroid does, :meth:`ImageGrid.voxel_of`), profiles
-through the maximum along x, y and z, and the mean absolute difference above the threshold.
+to a structure when the voxel holding its centroid does, :meth:`ImageGrid.voxel_of`; the whole
+mesh's voxel DVH covers the compared region), profiles through the maximum along x, y and z,
+and the mean absolute difference above the threshold.
+
+**Regions.** A mesh DVH and a voxel DVH of "the same" structure cover different matter: the
+tetrahedra follow the organ's surface, the voxels are those of the mask (or at least half inside
+the mesh). For each structure the summary gives both regions' volume [cm³] and mass [g] (mesh:
+eq. 3 tet masses from the vertex densities; voxels: ρ_j V from ``density`` — the CT through the
+calibration — or, without it, the mesh's mass per covered volume in each voxel, said so), both
+means — volume-weighted Σ V_i D_i / Σ V_i and mass-weighted Σ m_i D_i / Σ m_i (energy / mass) —
+and the mesh dose put on the voxels (energy-conserving transfer) averaged over the *voxel*
+region: the mesh and voxel means on the same voxels. When the DVH means differ by more than
+:data:`REGION_NOTE_PERCENT` and the regions do too, a note says how much of the difference the
+regions explain.
 """
 
 from __future__ import annotations
@@ -28,9 +40,10 @@ from tetdose.compare.dvh import dvh, image_dvh
 from tetdose.compare.gamma import gamma_index
 from tetdose.compare.profiles import image_profile, mesh_profile
 from tetdose.core.image import Image, ImageGrid
+from tetdose.core.mass import tet_mass_g
 from tetdose.core.mesh import TetMesh
 from tetdose.core.overlap import Overlap, compute_overlap
-from tetdose.core.transfer import mesh_dose_to_grid, per_tet_dose
+from tetdose.core.transfer import mesh_dose_to_grid, mesh_mass_on_grid, per_tet_dose
 from tetdose.errors import GeometryMismatchError, MeshError, OptionError
 from tetdose.plan.prescription import PER_PHOTON_UNIT
 
@@ -38,6 +51,8 @@ from tetdose.plan.prescription import PER_PHOTON_UNIT
 CRITERIA = ((3.0, 3.0, False), (2.0, 2.0, False), (3.0, 3.0, True))
 #: A voxel is compared when at least this fraction of its volume lies inside the mesh.
 REGION_FRACTION = 0.5
+#: Mean doses (or regions) differing by more than this [%] get an explaining note.
+REGION_NOTE_PERCENT = 1.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -74,12 +89,12 @@ def labels_on(labels: Image, grid: ImageGrid) -> IntArray:
 
 def read_structure_masks(path: str | Path, grid: ImageGrid) -> dict[str, BoolArray]:
     """Name → voxel mask on ``grid``: RTSTRUCT ROIs by name, or ``label N`` per image label."""
-    from tetdose.core.io import read_image
+    from tetdose.core.io import read_labels
     from tetdose.dicom.rtstruct import is_rtstruct, read_rtstruct, structure_masks
 
     if is_rtstruct(path):
         return structure_masks(read_rtstruct(path), grid, skip_unusable=True)
-    labels = labels_on(read_image(path), grid)
+    labels = labels_on(read_labels(path, f"the structures' label image {path}"), grid)
     return {f"label {lab}": labels == lab for lab in np.unique(labels[labels > 0])}
 
 
@@ -113,11 +128,13 @@ def compare_doses(mesh: TetMesh, mesh_dose: FloatArray, voxel_dose: Image, *,
                   structures: Mapping[str, BoolArray] | None = None, reference: str = "voxel",
                   threshold_percent: float = 10.0, gamma_max_points: int | None = 200_000,
                   criteria: tuple[tuple[float, float, bool], ...] = CRITERIA,
-                  unit: str = PER_PHOTON_UNIT) -> Comparison:
+                  unit: str = PER_PHOTON_UNIT, density: Image | None = None) -> Comparison:
     """Compare a per-tet dose with a voxel dose (module docstring); doses in ``unit``.
 
     ``structures``: name → voxel mask on the voxel dose's grid (DVHs per structure besides the
-    whole mesh); ``reference``: "voxel" or "mesh", the gamma reference.
+    whole mesh); ``reference``: "voxel" or "mesh", the gamma reference; ``density``: voxel
+    densities [g/cm³] on the voxel dose's grid (the CT through its calibration) for the voxel
+    regions' masses (default: estimated from the mesh's densities).
     """
     if reference not in ("voxel", "mesh"):
         raise OptionError(f"the gamma reference must be 'voxel' or 'mesh', got {reference!r}")
@@ -137,7 +154,11 @@ def compare_doses(mesh: TetMesh, mesh_dose: FloatArray, voxel_dose: Image, *,
     figures = [report.dose_slices_figure(mesh_img, voxel, k=int(kmax[0]), unit=unit, mesh=mesh)]
     gammas = _gammas(ref, ev, region, int(kmax[0]), norm, criteria, threshold_percent,
                      gamma_max_points, figures)
-    dvh_summary = _dvhs(mesh, dose, mesh_img, voxel, structures or {}, unit, figures)
+    if density is not None:
+        voxel.grid.require_same(density.grid, "the voxel dose and the density (--ct)")
+    regions = _Regions(mesh, voxel.grid, overlap, density)
+    dvh_summary = _dvhs(mesh, dose, mesh_img, voxel, {"mesh": region, **(structures or {})},
+                        unit, figures, regions)
     centre = voxel.grid.index_to_physical(np.array(kmax[::-1], dtype=float))
     lo_mm, hi_mm = mesh.bounds_mm()
     for axis, name in enumerate("xyz"):
@@ -179,15 +200,69 @@ def _gammas(ref: Image, ev: Image, region: BoolArray, k: int, norm: float,
     return gammas
 
 
+class _Regions:
+    """Volumes, masses and weights of the tets and voxels a DVH covers (module docstring)."""
+
+    def __init__(self, mesh: TetMesh, grid: ImageGrid, overlap: Overlap,
+                 density: Image | None) -> None:
+        self.tet_volume_cm3 = mesh.volumes_mm3 / MM3_PER_CM3
+        self.tet_mass_g = (tet_mass_g(mesh) if "density" in mesh.point_data else None)
+        self.voxel_cm3 = grid.voxel_volume_mm3 / MM3_PER_CM3
+        if density is not None:
+            self.voxel_rho = np.asarray(density.array, dtype=np.float64)
+            self.mass_source = "voxel masses from the CT's densities (--ct)"
+        elif self.tet_mass_g is not None:
+            mass = mesh_mass_on_grid(mesh, grid, overlap=overlap).array
+            cover_cm3 = overlap.covered_volume_per_voxel_mm3().reshape(grid.shape) / MM3_PER_CM3
+            self.voxel_rho = np.divide(mass, cover_cm3, out=np.full(grid.shape, np.nan),
+                                       where=cover_cm3 > 0)
+            self.mass_source = ("voxel masses estimated from the mesh's densities (no --ct; "
+                                "voxels outside the mesh have none)")
+        else:
+            self.voxel_rho = None
+            self.mass_source = "no densities: masses unknown"
+
+    def mesh_part(self, sel: BoolArray, dose: FloatArray) -> dict[str, Any]:
+        out = {"volume_cm3": float(self.tet_volume_cm3[sel].sum())}
+        if self.tet_mass_g is not None:
+            m = self.tet_mass_g[sel]
+            out |= {"mass_g": float(m.sum()), "Dmean_mass_weighted": _mean(dose[sel], m)}
+        return out
+
+    def voxel_part(self, mask: BoolArray, dose: FloatArray) -> dict[str, Any]:
+        out: dict[str, Any] = {"volume_cm3": float(mask.sum()) * self.voxel_cm3}
+        if self.voxel_rho is not None:
+            rho = self.voxel_rho[mask]
+            known = np.isfinite(rho)
+            if known.any():
+                m = rho[known] * self.voxel_cm3
+                out |= {"mass_g": float(m.sum()),
+                        "Dmean_mass_weighted": _mean(dose[mask][known], m)}
+            if not known.all():
+                out["voxels_without_density"] = int((~known).sum())
+        return out
+
+
+def _mean(d: FloatArray, w: FloatArray) -> float:
+    total = float(np.sum(w))
+    return float(np.dot(d, w) / total) if total > 0 else float("nan")
+
+
 def _dvhs(mesh: TetMesh, dose: FloatArray, mesh_img: Image, voxel: Image,
-          masks: Mapping[str, BoolArray], unit: str, figures: list[report.Figure]
-          ) -> dict[str, Any]:
-    """Mesh (by tet volume) and voxel DVHs of the whole mesh and of each structure."""
-    structures = {"mesh": (np.ones(mesh.n_tets, bool), mesh_img.array > 0)}
+          masks: Mapping[str, BoolArray], unit: str, figures: list[report.Figure],
+          regions: _Regions) -> dict[str, Any]:
+    """Mesh (by tet volume) and voxel DVHs of the whole mesh (its tets; the compared voxels) and
+    of each structure, with each region's volume, mass and means (module docstring)."""
+    structures = {}
     tet_voxel = voxel.grid.voxel_of(mesh.centroids_mm)
     for name, mask in masks.items():
-        sel = (tet_voxel >= 0) & np.asarray(mask).ravel()[np.maximum(tet_voxel, 0)]
-        structures[name if name != "mesh" else "structure mesh"] = (sel, mask)
+        mask = np.asarray(mask, dtype=bool)
+        if name == "mesh" and not structures:
+            sel = np.ones(mesh.n_tets, bool)
+        else:
+            sel = (tet_voxel >= 0) & mask.ravel()[np.maximum(tet_voxel, 0)]
+            name = name if name != "mesh" else "structure mesh"
+        structures[name] = (sel, mask)
     curves, table = {}, {}
     for name, (sel, mask) in structures.items():
         if not sel.any() or not mask.any():
@@ -195,6 +270,39 @@ def _dvhs(mesh: TetMesh, dose: FloatArray, mesh_img: Image, voxel: Image,
         hm = dvh(dose[sel], mesh.volumes_mm3[sel] / MM3_PER_CM3, name="mesh")  # by volume
         hv = image_dvh(voxel, mask, name="voxel")
         curves[name] = [hm, hv]
-        table[name] = {"mesh": hm.metrics(), "voxel": hv.metrics()}
+        mesh_side = hm.metrics() | regions.mesh_part(sel, dose)
+        voxel_side = hv.metrics() | regions.voxel_part(mask, np.asarray(voxel.array))
+        same = {"mesh_Dmean": float(np.asarray(mesh_img.array)[mask].mean()),
+                "voxel_Dmean": hv.mean_gy}
+        table[name] = {"mesh": mesh_side, "voxel": voxel_side, "same_voxels": same,
+                       "mass_source": regions.mass_source}
+        note = _region_note(mesh_side, voxel_side, same)
+        if note:
+            table[name]["note"] = note
     figures.append(report.dvh_figure(curves, unit=unit))
     return table
+
+
+def _pct(a: float, b: float) -> float:
+    return 100.0 * (a - b) / b if b else float("nan")
+
+
+def _region_note(mesh: dict[str, Any], voxel: dict[str, Any], same: dict[str, float]
+                 ) -> str | None:
+    """Why the two DVH means differ, when the regions do (module docstring)."""
+    total = _pct(mesh["Dmean"], voxel["Dmean"])
+    dv = _pct(mesh["volume_cm3"], voxel["volume_cm3"])
+    dm = _pct(mesh["mass_g"], voxel["mass_g"]) if "mass_g" in mesh and "mass_g" in voxel \
+        else float("nan")
+    if not (abs(total) > REGION_NOTE_PERCENT and (abs(dv) > REGION_NOTE_PERCENT
+                                                  or abs(dm) > REGION_NOTE_PERCENT)):
+        return None
+    on_same = _pct(same["mesh_Dmean"], same["voxel_Dmean"])
+    mass = (f"{mesh['mass_g']:.4g} g in {mesh['volume_cm3']:.4g} cm³ of tetrahedra vs "
+            f"{voxel['mass_g']:.4g} g in {voxel['volume_cm3']:.4g} cm³ of voxels"
+            if np.isfinite(dm) else f"{mesh['volume_cm3']:.4g} cm³ of tetrahedra vs "
+            f"{voxel['volume_cm3']:.4g} cm³ of voxels")
+    return (f"the mean doses differ by {total:+.1f} % but the DVHs cover different matter "
+            f"({mass}); on the same voxels the mesh dose differs by {on_same:+.1f} %, so "
+            f"{total - on_same:+.1f} points of the difference come from the regions, not the "
+            "doses")

@@ -1,23 +1,39 @@
-"""Reading and writing meshes (meshio) and images (SimpleITK); every write is atomic."""
+"""Reading and writing meshes (meshio) and images (SimpleITK); every write is atomic.
+
+Besides the per-file checks, three policies hold for a whole command (the CLI sets them):
+
+- :func:`tilted_policy`: tilted/sheared DICOM series resampled instead of refused;
+- :func:`mesh_unit_policy`: the unit of the meshes' coordinates (``--mesh-unit``), and the check
+  that every mesh read is plausible for every image read (:mod:`tetdose.core.units`: a mesh in
+  metres is refused with the likely unit);
+- ITK/GDCM messages (``WARNING: In …GDCMSeriesFileNames.cxx``) never reach the terminal raw:
+  :func:`itk_messages` captures them while SimpleITK reads or writes and reports them as one-line
+  warnings in tetdose's words (or drops them when tetdose's own error says more).
+
+Label images have one rule (:func:`check_labels`): whole numbers only.
+"""
 
 from __future__ import annotations
 
 import contextlib
 import io
 import os
+import re
 import warnings
 from collections.abc import Iterator, Sequence
 from contextvars import ContextVar
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from tetdose._atomic import atomic_write_file, check_output_file
+from tetdose._atomic import atomic_write_file, check_output_file, record_note
 from tetdose.core.icrp145 import is_icrp145, read_icrp145
-from tetdose.core.image import Image, check_ct_hu
+from tetdose.core.image import Image, ImageGrid, check_ct_hu
 from tetdose.core.mesh import TetMesh, compact_points
-from tetdose.errors import ImageError, MeshError
+from tetdose.core.units import MESH_UNITS, check_mesh_on_grid
+from tetdose.errors import ImageError, MeshError, OptionError, OutputError
 
 #: Relative tolerance on slice-to-slice spacing of a DICOM series.
 SLICE_SPACING_RTOL = 1e-3
@@ -42,6 +58,132 @@ _RESAMPLE_TILTED: ContextVar[bool] = ContextVar("resample_tilted", default=False
 #: How the refusal of a tilted series names the way to allow it.
 RESAMPLE_HINT = ("rerun with --resample-tilted (Python: resample_tilted=True) to resample it onto "
                  "an orthogonal grid (linear, −1000 HU outside), or resample the series first")
+
+
+#: ITK/GDCM messages that tetdose's own error (or nothing) replaces: fragments → None.
+_ITK_SILENT = ("No Series were found", "No Series can be found")
+#: How the label-image rule names its fix.
+LABEL_FIX = ("a segmentation resampled with linear interpolation mixes labels at their borders; "
+             "resample it with nearest-neighbour interpolation (SimpleITK sitkNearestNeighbor)")
+
+
+@dataclass
+class _UnitPolicy:
+    """The stated mesh unit (None: mm, not stated) and what was read so far."""
+
+    unit: str | None
+    meshes: list[tuple[str, np.ndarray, float]] = field(default_factory=list)
+    grids: list[tuple[str, ImageGrid]] = field(default_factory=list)
+
+
+_MESH_UNIT: ContextVar[_UnitPolicy | None] = ContextVar("tetdose_mesh_unit", default=None)
+
+
+@contextlib.contextmanager
+def mesh_unit_policy(unit: str | None = None) -> Iterator[None]:
+    """During the block, meshes are read in ``unit`` ("mm", "cm", "m"; None: mm, not stated) —
+    their points multiplied by :data:`~tetdose.core.units.MESH_UNITS` — and every mesh read is
+    checked against every image read (:func:`tetdose.core.units.check_mesh_on_grid`)."""
+    if unit is not None and unit not in MESH_UNITS:
+        raise OptionError(f"mesh unit {unit!r} is unknown; use one of {', '.join(MESH_UNITS)}")
+    token = _MESH_UNIT.set(_UnitPolicy(unit))
+    if unit not in (None, "mm"):
+        record_note("mesh_unit", unit)
+    try:
+        yield
+    finally:
+        _MESH_UNIT.reset(token)
+
+
+def _seen_mesh(mesh: TetMesh, what: str) -> None:
+    policy = _MESH_UNIT.get()
+    if policy is None:
+        return
+    points = mesh.points_mm
+    if len(points) > 20_000:
+        points = points[np.linspace(0, len(points) - 1, 20_000).astype(np.intp)]
+    entry = (what, np.array(points), float(mesh.volumes_mm3.sum()))
+    policy.meshes.append(entry)
+    for grid_what, grid in policy.grids:
+        check_mesh_on_grid(entry[1], entry[2], grid, mesh_what=what, grid_what=grid_what,
+                           unit=policy.unit)
+
+
+def _seen_grid(image: Image, what: str) -> Image:
+    policy = _MESH_UNIT.get()
+    if policy is not None:
+        policy.grids.append((what, image.grid))
+        for mesh_what, points, volume in policy.meshes:
+            check_mesh_on_grid(points, volume, image.grid, mesh_what=mesh_what, grid_what=what,
+                               unit=policy.unit)
+    return image
+
+
+def _itk_text(raw: str) -> str:
+    """``WARNING: In /…/itkX.cxx, line 101 / X (0x…): text`` → ``text`` (one line)."""
+    lines = [ln.strip() for ln in raw.strip().splitlines() if ln.strip()]
+    lines = [ln for ln in lines if not (ln.startswith(("WARNING: In ", "ERROR: In "))
+                                        and ", line " in ln)]
+    text = " ".join(" ".join(lines).split())
+    m = re.match(r"^\w+ \(0x[0-9a-fA-F]+\): (.*)$", text)
+    return m.group(1) if m else text
+
+
+@contextlib.contextmanager
+def itk_messages(what: str) -> Iterator[list[str]]:
+    """Capture what ITK/GDCM would print during the block; yield the list they are added to.
+
+    If the block succeeds, each message (except those tetdose's own checks replace) becomes
+    one warning ``WHAT: SimpleITK reported: …``; if it raises, they are dropped — tetdose's
+    error says what is wrong.
+    """
+    import SimpleITK as sitk
+
+    said: list[str] = []
+
+    class _Logger(sitk.LoggerBase):  # type: ignore[misc, name-defined]
+        def DisplayText(self, t: str) -> None:  # noqa: N802 - ITK's names
+            said.append(_itk_text(t))
+
+        DisplayErrorText = DisplayWarningText = DisplayGenericOutputText = DisplayText  # noqa: N815
+        DisplayDebugText = DisplayText  # noqa: N815
+
+    logger = _Logger()
+    previous = logger.SetAsGlobalITKLogger()
+    try:
+        yield said
+    finally:
+        previous.SetAsGlobalITKLogger()
+    for text in dict.fromkeys(said):
+        if text and not any(s in text for s in _ITK_SILENT):
+            warnings.warn(f"{what}: SimpleITK reported: {text}", stacklevel=3)
+
+
+def check_labels(image: Image, what: str = "the label image") -> Image:
+    """``image`` with an integer array, or an :class:`ImageError`: the one rule for label images
+    everywhere (``mesh --labels``, ``dose --labels``, ``compare --structures``, masks).
+
+    Integer and boolean pixels pass; floating-point pixels pass only if every value is a whole
+    number (then cast to int64); any fraction, NaN or infinity is refused naming a voxel and the
+    fix (:data:`LABEL_FIX`).
+    """
+    arr = np.asarray(image.array)
+    if arr.dtype.kind in "iub":
+        return image
+    if arr.dtype.kind != "f":
+        raise ImageError(f"{what} has pixel type {arr.dtype}; give a scalar integer label image")
+    bad = ~np.isfinite(arr) | (arr != np.rint(np.where(np.isfinite(arr), arr, 0.0)))
+    if bad.any():
+        k, j, i = (int(v) for v in np.argwhere(bad)[0])
+        raise ImageError(f"{what} has non-integer values ({int(bad.sum())} voxels, e.g. "
+                         f"{arr[k, j, i]:.4g} at i={i}, j={j}, k={k}): label images must hold "
+                         f"whole numbers — {LABEL_FIX}")
+    return image.with_array(arr.astype(np.int64))
+
+
+def read_labels(path: str | os.PathLike[str], what: str | None = None) -> Image:
+    """A label image checked by :func:`check_labels`."""
+    return check_labels(read_image(path), what or f"the label image {path}")
 
 
 @contextlib.contextmanager
@@ -69,8 +211,10 @@ def read_mesh(path: str | os.PathLike[str], *, fix_orientation: bool = False) ->
     path = Path(path)
     if not path.exists():
         raise MeshError(f"mesh file {path} does not exist")
-    if is_icrp145(path):
-        return read_icrp145(path)[0]
+    if is_icrp145(path):  # its own unit (cm), converted by the reader
+        mesh = read_icrp145(path)[0]
+        _seen_mesh(mesh, f"the mesh {path}")
+        return mesh
     if path.is_file() and path.stat().st_size == 0:
         raise MeshError(f"mesh file {path} is empty; give a VTU/VTK/MSH/INP/MESH/ELE file")
     said = io.StringIO()
@@ -98,8 +242,11 @@ def read_mesh(path: str | os.PathLike[str], *, fix_orientation: bool = False) ->
             region = cell_data.pop(name).astype(np.int64).reshape(-1)
             break
     points = np.asarray(m.points, dtype=np.float64)
-    if points.shape[1] != 3:
-        raise MeshError(f"{path}: points must be 3-D, got {points.shape[1]} coordinates")
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise MeshError(f"{path}: points must be 3-D, got {points.shape[-1]} coordinates")
+    policy = _MESH_UNIT.get()
+    if policy is not None and policy.unit is not None:
+        points = points * MESH_UNITS[policy.unit]
     point_data = {k: np.asarray(v) for k, v in m.point_data.items()}
     if len(np.unique(tets)) < len(points):  # surface-only nodes and the like
         points, tets, used = compact_points(points, tets)
@@ -116,6 +263,7 @@ def read_mesh(path: str | os.PathLike[str], *, fix_orientation: bool = False) ->
     if fix_orientation:
         mesh = mesh.with_fixed_orientation()
     mesh.check_cells(context=f"in {path}")
+    _seen_mesh(mesh, f"the mesh {path}")
     return mesh
 
 
@@ -159,10 +307,12 @@ def read_image(path: str | os.PathLike[str], *, resample_tilted: bool | None = N
     if path.is_dir():
         return _read_dicom_series(path, resample_tilted)
     try:
-        img = sitk.ReadImage(str(path))
+        with itk_messages(str(path)):
+            img = sitk.ReadImage(str(path))
     except RuntimeError as exc:
-        raise ImageError(f"cannot read image {path}: {str(exc).strip().splitlines()[-1]}") from exc
-    return Image.from_sitk(img)
+        raise ImageError(f"cannot read image {path}: {_itk_text(str(exc).strip().splitlines()[-1])}"
+                         ) from exc
+    return _seen_grid(Image.from_sitk(img), f"the image {path}")
 
 
 def read_ct(path: str | os.PathLike[str], *, resample_tilted: bool | None = None) -> Image:
@@ -176,13 +326,16 @@ def _read_dicom_series(folder: Path, resample_tilted: bool | None = None) -> Ima
     import SimpleITK as sitk
 
     reader = sitk.ImageSeriesReader()
-    series = reader.GetGDCMSeriesIDs(str(folder))
-    if not series:
-        raise ImageError(f"{folder} holds no DICOM image series")
-    if len(series) > 1:
-        raise ImageError(f"{folder} holds {len(series)} series; give a folder with one CT series")
-    return read_dicom_files(reader.GetGDCMSeriesFileNames(str(folder), series[0]), what=str(folder),
-                            resample_tilted=resample_tilted)
+    with itk_messages(str(folder)):
+        series = reader.GetGDCMSeriesIDs(str(folder))
+        if not series:
+            raise ImageError(f"{folder} holds no DICOM image series; give the folder of one CT "
+                             "series")
+        if len(series) > 1:
+            raise ImageError(f"{folder} holds {len(series)} series; give a folder with one CT "
+                             "series")
+        files = reader.GetGDCMSeriesFileNames(str(folder), series[0])
+    return read_dicom_files(files, what=str(folder), resample_tilted=resample_tilted)
 
 
 def read_dicom_files(files: Sequence[str | os.PathLike[str]], *, what: str,
@@ -212,13 +365,14 @@ def read_dicom_files(files: Sequence[str | os.PathLike[str]], *, what: str,
     _check_slice_geometry(headers, what)
     sheared = len(files) > 1 and _check_shear(what, headers, normal, allow=resample)
     if skewed or sheared:
-        return _read_tilted(files, headers, normal, what)
+        return _seen_grid(_read_tilted(files, headers, normal, what), f"the CT series {what}")
     reader = sitk.ImageSeriesReader()
     reader.SetFileNames(files)
-    with warnings.catch_warnings():
+    with warnings.catch_warnings(), itk_messages(what):
         warnings.simplefilter("ignore")
         img = reader.Execute()
-    return check_ct_hu(Image.from_sitk(img), f"the CT series {what}")
+    return _seen_grid(check_ct_hu(Image.from_sitk(img), f"the CT series {what}"),
+                      f"the CT series {what}")
 
 
 def _read_tilted(files: list[str], headers: Sequence[Any], normal: np.ndarray,
@@ -232,7 +386,7 @@ def _read_tilted(files: list[str], headers: Sequence[Any], normal: np.ndarray,
     order = np.argsort(pos @ normal, kind="stable")
     reader = sitk.ImageSeriesReader()
     reader.SetFileNames([files[i] for i in order])
-    with warnings.catch_warnings():
+    with warnings.catch_warnings(), itk_messages(what):
         warnings.simplefilter("ignore")
         stack = sitk.GetArrayFromImage(reader.Execute())
     iop = np.array([float(v) for v in headers[0].ImageOrientationPatient])
@@ -342,6 +496,27 @@ def write_image(path: str | os.PathLike[str], image: Image, *, compress: bool = 
 
     check_output_file(path, suffixes=IMAGE_SUFFIXES, inputs=inputs, what="image output")
     path = Path(path)
-    with atomic_write_file(path, inputs=inputs) as tmp:
-        sitk.WriteImage(image.to_sitk(), str(tmp), compress)
+    with atomic_write_file(path, inputs=inputs) as tmp, itk_messages(str(path)):
+        try:
+            sitk.WriteImage(image.to_sitk(), str(tmp), compress)
+        except RuntimeError as exc:
+            raise _write_error(exc, path) from exc
     return path
+
+
+#: Below this many free bytes a failed write is taken for a full disk.
+_FULL_BYTES = 1 << 20
+
+
+def _write_error(exc: RuntimeError, path: Path) -> OutputError:
+    """SimpleITK's write failure (a RuntimeError, also for a full disk) in tetdose's words."""
+    try:
+        st = os.statvfs(path.parent)
+        full = st.f_bavail * st.f_frsize < _FULL_BYTES
+    except OSError:
+        full = False
+    if full:
+        return OutputError(f"no space left writing in {path.parent}; free some space or choose "
+                           "another disk")
+    return OutputError(f"cannot write image {path}: "
+                       f"{_itk_text(str(exc).strip().splitlines()[-1])}")

@@ -2,8 +2,10 @@
 
 * A label image (NRRD / MHA / NIfTI / DICOM SEG that SimpleITK reads) is used as it is.
 * RT Structure Set ROIs are rasterized on the CT grid by
-  :func:`tetdose.dicom.rtstruct.structure_masks`; ROI i (in the order asked) becomes label
-  i + 1, later ROIs winning where they overlap.
+  :func:`tetdose.dicom.rtstruct.structure_mask`; ROI i (in the order asked) becomes label
+  i + 1, later ROIs winning where they overlap. An ROI is asked for by its name, or — when two
+  ROIs share one name — as ``NAME (NUMBER)`` with its ROI number; the bare shared name is
+  refused, listing both.
 * ``body="auto"`` adds the CT's patient outline (:func:`tetdose.meshing.labels.body_mask`),
   resampled by nearest neighbour onto the label grid when it differs from the CT grid, as label
   ``max + 1`` under every other label; ``body=N`` only makes sure label N is meshed.
@@ -12,6 +14,7 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
@@ -22,17 +25,41 @@ from tetdose.meshing.labels import as_label_array, body_mask
 
 def labels_from_structures(path: str, ct: Image, rois: Sequence[str]) -> tuple[Image, dict[int, str]]:
     """Label image on the CT grid from the ROIs ``rois`` of the RT Structure Set ``path``."""
-    from tetdose.dicom.rtstruct import read_rtstruct, structure_masks
+    from tetdose.dicom.rtstruct import read_rtstruct, structure_mask
 
     if not rois:
         raise ImageError("name the ROIs to mesh with --roi NAME (repeat for several)")
-    masks = structure_masks(read_rtstruct(path), ct.grid, names=list(rois))
+    chosen = select_rois(read_rtstruct(path), rois, str(path))
     out = np.zeros(ct.grid.shape, dtype=np.int32)
     names = {}
-    for i, name in enumerate(rois):
-        out[masks[name]] = i + 1
+    for i, (name, structure) in enumerate(zip(rois, chosen, strict=True)):
+        out[structure_mask(structure, ct.grid)] = i + 1
         names[i + 1] = name
     return Image(out, ct.grid), names
+
+
+def select_rois(structures: Sequence[Any], rois: Sequence[str], what: str) -> list[Any]:
+    """The structures asked for by name, or by ``NAME (NUMBER)`` where names repeat (module
+    docstring); an ambiguous or unknown name is an :class:`ImageError` listing the choices."""
+    by_name: dict[str, list[Any]] = {}
+    for s in structures:
+        by_name.setdefault(s.name, []).append(s)
+    by_key = {f"{s.name} ({s.number})": s for s in structures}
+    out = []
+    for roi in rois:
+        same = by_name.get(roi, [])
+        if len(same) == 1:
+            out.append(same[0])
+        elif len(same) > 1:
+            keys = " or ".join(f"--roi '{roi} ({s.number})'" for s in same)
+            raise ImageError(f"{what} holds {len(same)} ROIs named {roi!r} (ROI numbers "
+                             f"{', '.join(str(s.number) for s in same)}); say which: {keys}")
+        elif roi in by_key:
+            out.append(by_key[roi])
+        else:
+            raise ImageError(f"{what} has no ROI named {roi!r}; it holds "
+                             f"{sorted({s.name for s in structures})}")
+    return out
 
 
 def _on_grid(mask: np.ndarray, source: Image, target: Image) -> np.ndarray:

@@ -20,6 +20,8 @@ from scipy import ndimage
 
 from tetdose._typing import FloatArray, IntArray
 from tetdose.core.body import largest_component
+from tetdose.core.image import Image, ImageGrid
+from tetdose.core.io import check_labels
 from tetdose.errors import ImageError
 
 #: More distinct values than this, or any negative value: the image is a CT, not labels.
@@ -31,23 +33,27 @@ BODY_THRESHOLD_HU = -500.0
 
 
 def as_label_array(arr: np.ndarray, what: str = "the label image") -> np.ndarray:
-    """``arr`` as an integer label array; a CT (negative values, thousands of distinct values,
-    non-integral values) is refused with an :class:`ImageError` saying what to pass instead."""
+    """``arr`` as an integer label array; a CT (negative values, thousands of distinct values) is
+    refused with an :class:`ImageError` saying what to pass instead, and non-integer values by
+    the one rule of label images (:func:`tetdose.core.io.check_labels`: resample with nearest
+    neighbour)."""
     arr = np.asarray(arr)
     hint = ("it looks like a CT, not a label map; pass the CT with --ct and a segmentation "
             "with --labels (or --structures)")
-    if arr.dtype.kind == "f":
-        if not np.all(np.isfinite(arr)) or np.any(arr != np.rint(arr)):
-            raise ImageError(f"{what} has non-integer values: {hint}")
-        arr = arr.astype(np.int64)
-    elif arr.dtype.kind not in "iub":
+    if arr.dtype.kind in "iuf" and arr.size and np.nanmin(arr) < 0:
+        raise ImageError(f"{what} has negative values (min {np.nanmin(arr):g}): {hint}")
+    if arr.dtype.kind not in "iubf":
         raise ImageError(f"{what} has dtype {arr.dtype}; give an integer label image")
-    if arr.size and arr.min() < 0:
-        raise ImageError(f"{what} has negative values (min {arr.min()}): {hint}")
+    if arr.dtype.kind == "f":
+        arr = check_labels(Image(arr, _unit_grid(arr.shape)), what).array
     step = max(1, arr.size // 2_000_000)  # a strided sample decides fast for a big CT
     if len(np.unique(arr.ravel()[::step])) > MAX_LABELS or len(np.unique(arr)) > MAX_LABELS:
         raise ImageError(f"{what} has more than {MAX_LABELS} distinct values: {hint}")
     return arr
+
+
+def _unit_grid(shape: tuple[int, ...]) -> ImageGrid:
+    return ImageGrid(np.zeros(3), np.ones(3), np.eye(3), tuple(reversed(shape)))
 
 
 def checked_label_ids(arr: np.ndarray, label_ids: Iterable[int] | None) -> IntArray:

@@ -35,14 +35,24 @@ level sets, Mmg v5.5+; bound through ``mmgpy``):
    given to the label across, :mod:`tetdose.meshing.flips`): every tetrahedron ≥ 10°.
 
 The output is deterministic for the same input and options (MMG is sequential and seedless).
+
+**Bounded work.** Before MMG runs, :func:`estimate` predicts the final and background tetrahedra,
+the peak memory and the time from the labels' voxel volumes V_l and target edges h_l (constants
+below, measured on this project's runs); a ``budget`` refuses a job beyond it, and ``progress``
+receives one event per stage and per cut (the CLI runs all this in a child process,
+:mod:`tetdose.meshing.worker`, so that Ctrl-C and SIGTERM end MMG at once). A label that the
+distance-field blur leaves without any inside (less than about 2×2×3 voxels) is refused before
+MMG, naming it, instead of vanishing in the level-set cut.
 """
 
 from __future__ import annotations
 
 import math
+import os
+import time
 import warnings
-from collections.abc import Iterable, Mapping
-from typing import NamedTuple
+from collections.abc import Callable, Iterable, Mapping
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -80,6 +90,134 @@ REQUIRED_DIHEDRAL_DEG = 10.0
 HMIN_FRACTION = 0.25
 
 
+#: Final tetrahedra ≈ TETS_PER_H3 · Σ_l V_l / h_l³ + TETS_PER_H2 · Σ_lm A_lm / min(h_l, h_m)²
+#: (V_l voxel volume, A_lm voxel-face area between labels l and m or the outside): fitted to
+#: MMG's meshes of boxes, nested cubes and spheres (15–28 k tets, within a factor 1.5) and to
+#: the real lung (44 k tets at h = 12 mm).
+TETS_PER_H3 = 20.0
+TETS_PER_H2 = 25.0
+#: Peak memory: the process with its libraries, plus this much per final tetrahedron [B]
+#: (measured 1.0–1.1 GB peak for 64–215 k tets, 0.31 GB before meshing).
+BASE_BYTES = 400e6
+BYTES_PER_TET = 6000.0
+#: Time [s] ≈ S_FIXED + final tets · (S_PER_TET + S_PER_TET_LABEL · n_labels): fitted to
+#: 16–28 k tets / 2–3 labels in 10–25 s (this machine, shared) and 693 k tets / 31 labels in
+#: 17 min (README): MMG's final remesh slows down with many packed labels.
+S_FIXED = 3.0
+S_PER_TET = 6e-4
+S_PER_TET_LABEL = 3e-5
+
+
+class MeshingEstimate(NamedTuple):
+    """What a meshing job will take (see :func:`estimate`): tetrahedra, memory [B], time [s]."""
+
+    n_tets: int
+    memory_bytes: float
+    seconds: float
+
+    def describe(self) -> str:
+        return (f"about {_count(self.n_tets)} tets, {self.memory_bytes / 1e9:.1f} GB, "
+                f"{duration_text(self.seconds)}")
+
+
+class Budget(NamedTuple):
+    """Limits of a meshing job: time [s] and memory [B] (None: no limit)."""
+
+    max_seconds: float | None = None
+    max_bytes: float | None = None
+
+
+#: Progress callback: ``progress(event, info)`` with event "start" (info: estimate, labels),
+#: "background" (tets), "cut" (labels, done, total, elapsed_s, left_s), "remesh", "done".
+Progress = Callable[[str, dict[str, Any]], None]
+
+
+def _count(n: float) -> str:
+    if n >= 1e9:
+        return f"{n / 1e9:.3g} G"
+    return f"{n / 1e6:.3g} M" if n >= 1e6 else f"{n / 1e3:.3g} k" if n >= 1e3 else f"{n:.0f}"
+
+
+def duration_text(seconds: float) -> str:
+    if seconds < 10:
+        return f"{seconds:.2g} s"
+    if seconds < 90:
+        return f"{seconds:.0f} s"
+    return f"{seconds / 60:.0f} min" if seconds < 5400 else f"{seconds / 3600:.1f} h"
+
+
+def estimate(volumes_mm3: Mapping[int, float], sizes_mm: Mapping[int, float],
+             face_areas_mm2: Mapping[tuple[int, int], float] | None = None) -> MeshingEstimate:
+    """Tetrahedra, peak memory and time of meshing labels of voxel volumes ``volumes_mm3`` [mm³]
+    with target edges ``sizes_mm`` [mm]; ``face_areas_mm2``: (l, m) → voxel-face area between
+    labels l and m (0: outside), see :func:`face_areas_mm2` (constants of this module: a model,
+    good to a factor of ~2)."""
+    n = sum(TETS_PER_H3 * v / sizes_mm[lab] ** 3 for lab, v in volumes_mm3.items())
+    for (a, b), area in (face_areas_mm2 or {}).items():
+        h = min(sizes_mm.get(a, math.inf), sizes_mm.get(b, math.inf))
+        if math.isfinite(h):
+            n += TETS_PER_H2 * area / h**2
+    n = max(n, 1.0)
+    seconds = S_FIXED + n * (S_PER_TET + S_PER_TET_LABEL * len(volumes_mm3))
+    return MeshingEstimate(int(n), BASE_BYTES + BYTES_PER_TET * n, seconds)
+
+
+def face_areas_mm2(arr: np.ndarray, ids: Iterable[int], spacing_mm: FloatArray
+                   ) -> dict[tuple[int, int], float]:
+    """Voxel-face area [mm²] between each pair of labels (l < m; labels not in ``ids`` count as
+    the outside, 0) of the label array ``arr`` (numpy order z, y, x)."""
+    ids = [int(v) for v in ids]
+    lut = np.zeros(int(arr.max()) + 1, dtype=np.int64)
+    lut[ids] = np.arange(1, len(ids) + 1)
+    code = lut[np.asarray(arr, dtype=np.int64)]
+    n = len(ids) + 1
+    names = [0, *ids]
+    out: dict[tuple[int, int], float] = {}
+    for axis in range(3):
+        a = np.moveaxis(code, axis, 0)
+        lo, hi = a[:-1], a[1:]
+        diff = lo != hi
+        pair = np.minimum(lo[diff], hi[diff]) * n + np.maximum(lo[diff], hi[diff])
+        # numpy axis z, y, x ↔ spacing index 2, 1, 0: a face normal to axis has the other two
+        area = float(np.prod(np.delete(np.asarray(spacing_mm)[::-1], axis)))
+        for key, count in zip(*np.unique(pair, return_counts=True), strict=True):
+            k = (names[int(key) // n], names[int(key) % n])
+            out[k] = out.get(k, 0.0) + float(count) * area
+    return out
+
+
+def available_memory_bytes() -> float | None:
+    """Memory this process may still use [B]: MemAvailable of /proc/meminfo (Linux), else the
+    physical memory, else None."""
+    try:
+        with open("/proc/meminfo", encoding="ascii") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return float(line.split()[1]) * 1024.0
+    except OSError:
+        pass
+    try:
+        return float(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def check_budget(est: MeshingEstimate, budget: Budget, n_labels: int) -> None:
+    """Refuse a job whose estimate exceeds ``budget`` (MeshError naming the way out)."""
+    over = []
+    if budget.max_bytes is not None and est.memory_bytes > budget.max_bytes:
+        over.append(f"{est.memory_bytes / 1e9:.3g} GB of memory (available: "
+                    f"{budget.max_bytes / 1e9:.3g} GB)")
+    if budget.max_seconds is not None and est.seconds > budget.max_seconds:
+        over.append(f"{duration_text(est.seconds)} (limit {duration_text(budget.max_seconds)}, "
+                    "--max-minutes)")
+    if over:
+        raise MeshError(f"meshing {n_labels} label{'s' * (n_labels != 1)} into about "
+                        f"{_count(est.n_tets)} tets would "
+                        f"need {' and '.join(over)}; give larger target sizes (--size-mm), mesh "
+                        "fewer labels (--label), or pass --force to run it anyway")
+
+
 def _i32(a: np.ndarray) -> np.ndarray:
     """C-contiguous int32 (the binding reads raw memory: a column-permuted view is F-ordered)."""
     return np.ascontiguousarray(a, dtype=np.int32)
@@ -91,7 +229,8 @@ def _mmg():  # noqa: ANN202 - module
 
 def conforming_mesh(labels: Image, label_ids: Iterable[int] | None = None,
                     size_mm: float | Mapping[int, float] | None = None, *,
-                    smoothing_vox: float = SMOOTHING_VOX, keep_volume: bool = True) -> TetMesh:
+                    smoothing_vox: float = SMOOTHING_VOX, keep_volume: bool = True,
+                    budget: Budget | None = None, progress: Progress | None = None) -> TetMesh:
     """One conforming tetrahedral mesh of the labels ``label_ids`` (default: all ≠ 0).
 
     Parameters
@@ -108,11 +247,20 @@ def conforming_mesh(labels: Image, label_ids: Iterable[int] | None = None,
         Gaussian blur [voxels] of the distance fields (0 = none: a faint voxel staircase stays).
     keep_volume : bool
         Shift each label's level set so that its volume equals its voxel volume (step 3).
+    budget : Budget, optional
+        Refuse (MeshError) before MMG runs if :func:`estimate` exceeds it.
+    progress : callable, optional
+        ``progress(event, info)`` per stage and per cut (see :data:`Progress`).
     """
     mmgpy = _mmg()
-    stage = _prepared(mmgpy, labels, label_ids, size_mm, smoothing_vox, keep_volume)
-    points, tets, refs = _cut_labels(mmgpy, stage.points, stage.tets, stage.phi, stage.order)
-    return _remeshed(mmgpy, points, tets, refs, stage.sizes, labels.grid.spacing_mm)
+    say = progress or (lambda event, info: None)
+    stage = _prepared(mmgpy, labels, label_ids, size_mm, smoothing_vox, keep_volume, budget, say)
+    points, tets, refs = _cut_labels(mmgpy, stage.points, stage.tets, stage.phi, stage.order,
+                                     progress=say)
+    say("remesh", {"tets": len(tets)})
+    mesh = _remeshed(mmgpy, points, tets, refs, stage.sizes, labels.grid.spacing_mm)
+    say("done", {"tets": mesh.n_tets})
+    return mesh
 
 
 class _Stage(NamedTuple):
@@ -127,14 +275,16 @@ class _Stage(NamedTuple):
 
 def _prepared(mmgpy, labels: Image, label_ids: Iterable[int] | None,  # noqa: ANN001
               size_mm: float | Mapping[int, float] | None, smoothing_vox: float,
-              keep_volume: bool) -> _Stage:
-    """Steps 1–3: distance fields, sizes, background mesh, volume shifts."""
+              keep_volume: bool, budget: Budget | None = None,
+              progress: Progress | None = None) -> _Stage:
+    """Steps 1–3: distance fields, sizes, (budget,) background mesh, volume shifts."""
     arr = np.asarray(labels.array)
     ids = checked_label_ids(arr, label_ids)
     grid = labels.grid
     fields = {lab: signed_distance(arr == lab, grid, smoothing_vox=smoothing_vox) for lab in ids}
-    union = signed_distance(np.isin(arr, ids), grid, smoothing_vox=smoothing_vox)
     targets = {lab: float(np.count_nonzero(arr == lab)) * grid.voxel_volume_mm3 for lab in ids}
+    _refuse_vanishing(fields, targets, grid.voxel_volume_mm3, smoothing_vox)
+    union = signed_distance(np.isin(arr, ids), grid, smoothing_vox=smoothing_vox)
     sizes = default_sizes_mm(targets, {lab: f.max_depth_mm for lab, f in fields.items()},
                              grid.spacing_mm)
     if isinstance(size_mm, Mapping):
@@ -144,13 +294,35 @@ def _prepared(mmgpy, labels: Image, label_ids: Iterable[int] | None,  # noqa: AN
     bad = {k: v for k, v in sizes.items() if not (math.isfinite(v) and v > 0)}
     if bad:
         raise MeshError(f"target sizes must be positive mm, got {bad}; fix --size-mm")
+    est = estimate(targets, sizes, face_areas_mm2(arr, ids, grid.spacing_mm))
+    if budget is not None:
+        check_budget(est, budget, len(ids))
+    if progress is not None:
+        progress("start", {"estimate": est, "labels": len(ids)})
     surface = {lab: max(SURFACE_FRACTION * sizes[lab], float(grid.spacing_mm.min())) for lab in ids}
     points, tets = _background(mmgpy, labels, fields, union, sizes, surface)
+    if progress is not None:
+        progress("background", {"tets": len(tets)})
     phi = _Fields(fields, union, points)
     if keep_volume:
         phi.shift_to_volumes(tets, targets, surface)
     order = sorted(ids.tolist(), key=lambda lab: (targets[lab], lab))
     return _Stage(points, tets, phi, sizes, order)
+
+
+def _refuse_vanishing(fields: Mapping[int, DistanceField], volumes_mm3: Mapping[int, float],
+                      voxel_mm3: float, smoothing_vox: float) -> None:
+    """A label with no inside left after the blur (max depth 0) would vanish in the cut: refuse
+    it now, naming it, its voxels and the ways out."""
+    gone = [lab for lab, f in fields.items() if not f.max_depth_mm > 0.0]
+    if gone:
+        lab = gone[0]
+        n = round(volumes_mm3[lab] / voxel_mm3)
+        more = f" (and {len(gone) - 1} more: {gone[1:6]})" if len(gone) > 1 else ""
+        raise MeshError(f"label {lab} has {n} voxel{'s' * (n != 1)} ({volumes_mm3[lab]:.3g} mm³)"
+                        f"{more}: too small or thin to mesh — after the {smoothing_vox:g}-voxel "
+                        "blur nothing of it is inside (it needs about 2×2×3 voxels); leave it "
+                        "out (--label the others), merge it into its neighbour, or lower --smooth")
 
 
 class _Fields:
@@ -223,7 +395,8 @@ def _background(mmgpy, labels: Image, fields: dict[int, DistanceField],  # noqa:
 
 
 def _cut_labels(mmgpy, points: FloatArray, tets: IntArray, phi: _Fields,  # noqa: ANN001
-                order: list[int], batched: bool = True) -> tuple[FloatArray, IntArray, IntArray]:
+                order: list[int], batched: bool = True, progress: Progress | None = None
+                ) -> tuple[FloatArray, IntArray, IntArray]:
     """Step 4: split the unassigned material batch by batch (:func:`_next_batch`; one label
     per call if not ``batched``); drop what is left outside. A batch MMG cannot cut is retried
     one label at a time, so an error names the label."""
@@ -231,6 +404,7 @@ def _cut_labels(mmgpy, points: FloatArray, tets: IntArray, phi: _Fields,  # noqa
     refs = np.full(len(tets), out, dtype=np.int64)
     pending, done = list(order), []
     single = set() if batched else set(order)
+    start = time.monotonic()
     while pending:
         phi.at(points)
         batch, psi = _next_batch(phi, tets, pending, single)
@@ -263,6 +437,11 @@ def _cut_labels(mmgpy, points: FloatArray, tets: IntArray, phi: _Fields,  # noqa
             refs[cut] = np.asarray(batch)[nearest]
         done += batch
         pending = [lab for lab in pending if lab not in batch]
+        if progress is not None:
+            elapsed = time.monotonic() - start
+            progress("cut", {"labels": list(batch), "done": len(done), "total": len(order),
+                             "elapsed_s": elapsed,
+                             "left_s": elapsed / len(done) * len(pending)})
     missing = sorted(set(order) - set(np.unique(refs).tolist()))
     if missing:
         raise MeshError(f"label(s) {missing} vanished in the level-set discretisation; give "

@@ -5,8 +5,10 @@ folder, or one sub-folder per phase). DICOM files anywhere below the folder are 
 ``SeriesInstanceUID`` (headers read with pydicom, ``stop_before_pixels``) and each series is
 read with SimpleITK through :func:`tetdose.core.io.read_dicom_files`, which applies the checks of
 ``read_image`` (modality CT, one slice geometry, uniform slice spacing) and names the series in
-its error. Phases are ordered by the first of these, in order of trust, that every series has
-with distinct values:
+its error. The series must share PatientID, FrameOfReferenceUID and StudyInstanceUID
+(:func:`tetdose.dicom.identity.check_identities`: a 4D-CT mixing two patients is refused naming
+both, unless mismatches are allowed). Phases are ordered by the first of these, in order of
+trust, that every series has with distinct values:
 
 1. ``TemporalPositionIndex`` (0020,9128), else ``TemporalPositionIdentifier`` (0020,0100);
 2. the phase percentage in ``SeriesDescription`` (``"4D-CT 20%"``, ``"T=20.0 %"``);
@@ -32,6 +34,7 @@ import numpy as np
 
 from tetdose.core.image import Image
 from tetdose.core.io import read_ct, read_dicom_files
+from tetdose.dicom.identity import check_identities, identity_of_header
 from tetdose.errors import ImageError
 
 #: File name endings read as image files (not DICOM).
@@ -39,7 +42,8 @@ IMAGE_SUFFIXES = (".nrrd", ".nhdr", ".mha", ".mhd", ".nii", ".nii.gz")
 #: Header fields read per file (everything else is skipped: fast on thousands of slices).
 _TAGS = ["SOPClassUID", "Modality", "SeriesInstanceUID", "SeriesDescription", "SeriesNumber",
          "TemporalPositionIndex", "TemporalPositionIdentifier", "AcquisitionTime",
-         "ImagePositionPatient", "ImageOrientationPatient", "Rows", "Columns", "PixelSpacing"]
+         "ImagePositionPatient", "ImageOrientationPatient", "Rows", "Columns", "PixelSpacing",
+         "PatientID", "FrameOfReferenceUID", "StudyInstanceUID"]
 _PERCENT = re.compile(r"(\d+(?:\.\d+)?)\s*%")
 _PHASE_NAME = re.compile(r"(?:phase|ph)[_\- ]?(\d+(?:\.\d+)?)", re.IGNORECASE)
 #: Largest distance [%] between a requested phase and a phase of the 4D-CT.
@@ -139,6 +143,8 @@ def _scan(folder: Path) -> tuple[list[_Series], list[Path]]:
 
 
 def _from_series(folder: Path, series: list[_Series]) -> list[Phase4D]:
+    check_identities([[identity_of_header(s.headers[0], folder, f"{s.label} in {folder}")
+                       for s in series]])  # one patient, one frame, one study (or allowed)
     order, how = _phase_order(folder, series)
     series = [series[i] for i in order]
     percents = _description_percents(series)

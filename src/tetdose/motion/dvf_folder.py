@@ -78,9 +78,9 @@ def mask_on(path: Path, like: Image) -> np.ndarray:
     by physical coordinates), as a boolean (nz, ny, nx) array."""
     import SimpleITK as sitk
 
-    from tetdose.core.io import read_image
+    from tetdose.core.io import read_labels
 
-    m = read_image(path)
+    m = read_labels(path, f"the mask {path}")
     arr = m.array if m.grid.same_as(like.grid) else sitk.GetArrayFromImage(sitk.Resample(
         m.to_sitk(), like.to_sitk(), sitk.Transform(), sitk.sitkNearestNeighbor, 0))
     if not np.any(arr):

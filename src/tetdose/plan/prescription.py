@@ -18,6 +18,7 @@ so relative comparisons are untouched; it is written into the run records
 from __future__ import annotations
 
 import re
+import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -27,6 +28,8 @@ import numpy as np
 from tetdose._typing import FloatArray
 from tetdose.errors import PlanError
 
+#: A scaled maximum dose above this many times the prescription is warned about.
+MAX_OVER_PRESCRIPTION = 5.0
 #: Label of doses without a prescription (plots, files, records).
 PER_PHOTON_UNIT = "Gy per source photon"
 _KEYS = {"structure", "dose_gy", "metric", "fractions"}
@@ -145,11 +148,43 @@ def region_centroid_mm(geometry: Any, labels: Any, label: int) -> FloatArray:  #
 
 def scale_for(rx: Prescription, dose_gy: FloatArray, mass_g: FloatArray,
               mask: np.ndarray) -> float:
-    """Source photons per fraction: ``rx.dose_gy / metric(dose in the structure)``."""
-    m = dose_metric(np.asarray(dose_gy)[mask], np.asarray(mass_g)[mask], rx.metric)
+    """Source photons per fraction: ``rx.dose_gy / metric(dose in the structure)``.
+
+    Refused when the metric is 0: if part of the structure scored nothing it is the statistics
+    ("too few histories: N % of the structure scored nothing"), if all of it, the beams miss it
+    or too few histories reach it. Warns when the scaled maximum dose exceeds
+    :data:`MAX_OVER_PRESCRIPTION` × the prescription (a noisy metric inflates every dose).
+    """
+    d, w = np.asarray(dose_gy, dtype=np.float64)[mask], np.asarray(mass_g, dtype=np.float64)[mask]
+    m = dose_metric(d, w, rx.metric)
+    total = float(w.sum())
+    zero = float(w[d <= 0.0].sum()) / total if total > 0 else 1.0
     if m <= 0.0:
-        raise PlanError(f"the structure {rx.structure!r} receives no dose; the beams miss it")
-    return rx.dose_gy / m
+        if zero >= 1.0:
+            raise PlanError(f"the structure {rx.structure!r} scored no dose at all: the beams "
+                            "miss it, or too few histories reach it; check the beams' aim, or "
+                            "raise --histories")
+        raise PlanError(f"too few histories: {_percent(zero)} % of the structure "
+                        f"{rx.structure!r} scored nothing, so its {rx.metric} is 0 (raise "
+                        "--histories; if that stays, the beams cover only part of it)")
+    scale = rx.dose_gy / m
+    peak = float(np.max(dose_gy)) * scale
+    if peak > MAX_OVER_PRESCRIPTION * rx.dose_gy:
+        why = (f"{_percent(zero)} % of the structure scored nothing: too few histories (raise "
+               "--histories)" if zero > 0 else "the prescription metric may rest on too few "
+               "histories (raise --histories), or check the structure and metric")
+        warnings.warn(f"prescribed {rx.metric} = {rx.dose_gy:g} Gy per fraction to "
+                      f"{rx.structure!r} puts the maximum dose at {peak:.4g} Gy per fraction, "
+                      f"{peak / rx.dose_gy:.0f}× the prescription; {why}", stacklevel=2)
+    return scale
+
+
+def _percent(fraction: float) -> str:
+    """A percentage that never reads 0 or 100 when it is not."""
+    pct = 100.0 * fraction
+    if 1.0 <= pct <= 99.0:
+        return f"{pct:.0f}"
+    return f"{pct:.2g}" if pct < 1.0 else f"{min(pct, 99.99):.4g}"
 
 
 def record(rx: Prescription, scale: float) -> dict[str, Any]:
