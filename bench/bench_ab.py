@@ -30,11 +30,11 @@ numba.set_num_threads(1)
 mesh, img = box(20)
 n = {n}
 for name, geom in (("mesh", mesh), ("voxel", img)):
-    simulate(geom, PLAN, TransportSettings(20, 2), progress=False)
+    simulate(geom, PLAN, TransportSettings(20, 2, physics="kerma"), progress=False)
     best = np.inf
     for _ in range(5):
         t = time.process_time()
-        simulate(geom, PLAN, TransportSettings(n, 10, 1), progress=False)
+        simulate(geom, PLAN, TransportSettings(n, 10, 1, physics="kerma"), progress=False)
         best = min(best, time.process_time() - t)
     print(name, best / n * 1e6)
 """

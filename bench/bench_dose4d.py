@@ -201,7 +201,7 @@ def main() -> None:
     clock = Clock()
     print("setup")
     ph, series, density, plan = setup(args, clock)
-    settings = TransportSettings(n_histories=args.histories, n_batches=args.batches, seed=1)
+    settings = TransportSettings(n_histories=args.histories, n_batches=args.batches, seed=1, physics="kerma")
     warm_up(series, density, plan, settings)
     print(f"\n{args.phases} phases × {args.histories} histories × (mesh + voxel), "
           f"{args.batches} batches")

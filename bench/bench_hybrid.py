@@ -73,7 +73,7 @@ def main(n_hist: int, edge_mm: float, slices: int) -> None:
                               field_mm=[60.0, 60.0], field_x_direction=[1, 0, 0]),))
     # 2 batches: the 26 M-voxel tally rows (8 B per voxel and batch, zeroed and summed per run)
     # would otherwise dominate the time of runs this short; they cost voxels and hybrid alike.
-    settings = TransportSettings(n_hist, 2, 1)
+    settings = TransportSettings(n_hist, 2, 1, physics="kerma")
     hybrid = World(mesh=mapped, density=density)
     t0 = time.perf_counter()
     job, _ = build_job(hybrid, plan, settings)
@@ -85,7 +85,7 @@ def main(n_hist: int, edge_mm: float, slices: int) -> None:
           f"over {int(np.prod(g.tri_n))} voxels of the mesh's box: {len(g.tri_items)} entries, "
           f"{lists_mb:.1f} MiB (voxel arrays {voxels_mb:.0f} MiB)")
     for world in (hybrid, World(density=density), World(mesh=mapped)):  # compile / load
-        simulate(world, plan, TransportSettings(20, 2), progress=False)
+        simulate(world, plan, TransportSettings(20, 2, physics="kerma"), progress=False)
     res = {name: best_cpu(w, plan, settings) for name, w in
            (("hybrid", hybrid), ("voxels", World(density=density)), ("mesh", World(mesh=mapped)))}
     per = {k: r.extra["cpu_s"] / n_hist * 1e6 for k, r in res.items()}

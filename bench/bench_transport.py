@@ -142,10 +142,10 @@ def bench_transport(mesh: TetMesh, image: Image, n_hist: int, repeat: int = 3) -
     per_history = {}
     for geom, name in ((mesh, "mesh"), (image, "voxel")):
         t0 = time.perf_counter()
-        simulate(geom, PLAN, TransportSettings(20, 2), progress=False)
+        simulate(geom, PLAN, TransportSettings(20, 2, physics="kerma"), progress=False)
         compile_s = time.perf_counter() - t0
         for est in ("track_length", "analog"):
-            settings = TransportSettings(n_hist, 10, estimator=est)
+            settings = TransportSettings(n_hist, 10, estimator=est, physics="kerma")
             runs = [simulate(geom, PLAN, settings, progress=False) for _ in range(repeat)]
             r = min(runs, key=lambda run: run.extra["cpu_s"])
             cpu = r.extra["cpu_s"]
@@ -195,7 +195,7 @@ def bench_threads(mesh: TetMesh, n_hist: int, ceiling: float, repeat: int = 3) -
         print("thread scaling: only one thread available")
         return
     walls: dict[int, list[float]] = {1: [], 2: []}
-    settings = TransportSettings(n_hist, 8)
+    settings = TransportSettings(n_hist, 8, physics="kerma")
     for _ in range(repeat):
         for threads in (1, 2):
             numba.set_num_threads(threads)
@@ -218,7 +218,7 @@ def bench_uncertainty(mesh: TetMesh, image: Image, n_hist: int) -> None:
                                 (image, "voxel", image.grid.voxel_centers_mm())):
         times = {r: [] for r in regions}
         for est in ("analog", "track_length"):
-            res = simulate(geom, PLAN, TransportSettings(n_hist, 20, estimator=est),
+            res = simulate(geom, PLAN, TransportSettings(n_hist, 20, estimator=est, physics="kerma"),
                            progress=False)
             cpu = res.extra["cpu_s"]
             x = res.energy_per_batch_mev / res.histories_per_batch[:, None]

@@ -26,7 +26,7 @@ def dose(beams, n, seed, geometry, batches=20):
     """(dose, σ) [per source photon] of linac ``beams`` (plan.toml tables) on ``geometry``."""
     rho, lab = geometry
     plan = Plan.from_dict({"beam": beams, "materials": {1: "water"}})
-    r = simulate(rho, plan, TransportSettings(n, batches, seed), labels=lab, progress=False)
+    r = simulate(rho, plan, TransportSettings(n, batches, seed, physics="kerma"), labels=lab, progress=False)
     return r.dose_gy.reshape(rho.grid.shape), r.dose_std_gy.reshape(rho.grid.shape)
 
 

@@ -196,7 +196,7 @@ class _Run:
         self.target_mm = tumour.mean(axis=0)
         plan = self.plan = _plan(self.target_mm, self.c, self.label_of["tumour"])
         settings = TransportSettings(n_histories=self.c.histories, n_batches=self.c.batches,
-                                     seed=self.c.seed)
+                                     seed=self.c.seed, physics="kerma")  # dose: issue 20
         self.d4 = run_dose4d(self.series, plan, settings, ct_hu=self.ph.ct,
                              phase_density=self.density, progress=self.progress)
         write_dose4d(self.d4, self.out / "dose4d")

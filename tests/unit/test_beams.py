@@ -99,7 +99,7 @@ def test_named_spectra_keep_the_tabulated_fluence_and_mean_energy():
 
 
 def _samples(plan, n):
-    src = source_arrays(plan, TransportSettings(n_histories=10, n_batches=2))
+    src = source_arrays(plan, TransportSettings(n_histories=10, n_batches=2, physics="kerma"))
     out = np.empty((n, 7))
     for i in range(n):
         _, *vals = sample_source(src, np.uint64(seed_for(7, 0, i)))
@@ -152,7 +152,7 @@ def test_isocentre_by_structure_name_needs_the_geometry():
         {"type": "linac", "spectrum": "6MV", "isocenter": "tumour"}]})
     assert plan.unresolved == ["tumour"]
     with pytest.raises(PlanError, match="needs the geometry"):
-        source_arrays(plan, TransportSettings(n_histories=10, n_batches=2))
+        source_arrays(plan, TransportSettings(n_histories=10, n_batches=2, physics="kerma"))
     from tetdose.core.image import Image, ImageGrid
 
     grid = ImageGrid(origin_mm=np.array([-10.0, 0.0, 5.0]), spacing_mm=np.array([2.0, 2.0, 2.0]),

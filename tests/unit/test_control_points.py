@@ -23,7 +23,7 @@ from tetdose.transport.run.settings import TransportSettings
 from tetdose.transport.sources._sample import sample_source
 from tetdose.transport.sources.arrays import source_arrays
 
-SETTINGS = TransportSettings(n_histories=10, n_batches=2)
+SETTINGS = TransportSettings(n_histories=10, n_batches=2, physics="kerma")
 
 
 @pytest.mark.parametrize(("a", "b", "direction", "sense", "turn"), [

@@ -25,7 +25,7 @@ distributed = pytest.importorskip("distributed", reason="dask.distributed is not
 
 PLAN = Plan((PhotonSource("parallel", [20.0, 20.0, -60.0], [0, 0, 1], energies_mev=[1.25],
                           field_mm=[20.0, 20.0]),))
-SETTINGS = TransportSettings(3000, 6, 11, estimator="analog")
+SETTINGS = TransportSettings(3000, 6, 11, estimator="analog", physics="kerma")
 GRID = grid_for([0, 0, 0], [40, 40, 40], [5, 5, 5])
 PLAN_TOML = ('[[beam]]\ntype = "parallel"\nenergy_mev = 1.25\nposition_mm = [20.0, 20.0, -60.0]\n'
              'direction = [0.0, 0.0, 1.0]\nfield_mm = [20.0, 20.0]\n')
@@ -93,7 +93,7 @@ def test_phases_use_their_own_streams_and_geometry(local_run):
 def test_per_geometry_settings_select_the_stream(client):
     """simulate_distributed with one settings per geometry = local runs with those settings."""
     mesh = breathing_series(1).mesh(0)
-    streams = [SETTINGS, TransportSettings(3000, 6, 11, estimator="analog", stream=4)]
+    streams = [SETTINGS, TransportSettings(3000, 6, 11, estimator="analog", stream=4, physics="kerma")]
     from tetdose.transport import simulate
 
     remote = simulate_distributed(client, [mesh, mesh], PLAN, streams, progress=False)
@@ -139,7 +139,7 @@ def test_cli_dose_with_local_cluster_matches_plain_run(tmp_path):
     mesh = breathing_series(1).mesh(0)
     write_mesh(tmp_path / "mesh.vtu", mesh)
     (tmp_path / "plan.toml").write_text(PLAN_TOML)
-    common = ["dose", "-q", "--mesh", str(tmp_path / "mesh.vtu"), "--plan",
+    common = ["dose", "--physics", "kerma", "-q", "--mesh", str(tmp_path / "mesh.vtu"), "--plan",
               str(tmp_path / "plan.toml"), "--histories", "2000", "--batches", "4"]
     assert main([*common, "-o", str(tmp_path / "local.vtu")]) == 0
     assert main([*common, "--dask", "local:2", "-o", str(tmp_path / "dask.vtu")]) == 0
@@ -154,7 +154,7 @@ def test_cli_dose4d_with_dask_and_missing_dask(tmp_path, monkeypatch, capsys):
     series = breathing_series(2)
     series.write(tmp_path / "phases")
     (tmp_path / "plan.toml").write_text(PLAN_TOML)
-    common = ["dose4d", "-q", "--phases", str(tmp_path / "phases"), "--plan",
+    common = ["dose4d", "--physics", "kerma", "-q", "--phases", str(tmp_path / "phases"), "--plan",
               str(tmp_path / "plan.toml"), "--histories", "2000", "--batches", "4"]
     assert main([*common, "-o", str(tmp_path / "local")]) == 0
     assert main([*common, "--dask", "local:1", "-o", str(tmp_path / "dask")]) == 0

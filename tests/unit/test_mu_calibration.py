@@ -73,7 +73,8 @@ def test_reference_conditions_give_gy_per_mu_times_mu():
     plans = [[_linac(150.0), _linac(50.0)], [_linac(200.0, mlc=mlc)]]
     for k, beams in enumerate(plans):
         plan = Plan.from_dict({"beam": beams, "materials": {1: "water"}, "calibration": _cal()})
-        r = simulate(rho, plan, TransportSettings(N_REF, 10, 7 + k), labels=lab, progress=False)
+        r = simulate(rho, plan, TransportSettings(N_REF, 10, 7 + k, physics="kerma"), labels=lab,
+                     progress=False)
         r = absolute_result(r, plan, rho, lab)
         rec = r.record()
         d, s = r.dose_gy[index], r.dose_std_gy[index]
@@ -103,7 +104,8 @@ def test_cli_dose_record_says_gy_per_fraction_and_keeps_the_calibration(tmp_path
     (tmp_path / "plan.toml").write_text(
         '[[beam]]\ntype = "linac"\nspectrum = "Co60"\nisocenter_mm = [0, 0, 0]\nweight = 50.0\n'
         '[calibration]\ngy_per_mu = 0.01\nreference_histories = 20000\n')
-    assert main(["dose", "--ct", str(tmp_path / "ct.nrrd"), "--plan", str(tmp_path / "plan.toml"),
+    assert main(["dose", "--physics", "kerma",
+                 "--ct", str(tmp_path / "ct.nrrd"), "--plan", str(tmp_path / "plan.toml"),
                  "--histories", "5e3", "-q", "-o", str(tmp_path / "dose.nrrd")]) == 0
     rec = json.loads((tmp_path / "dose.json").read_text())
     assert rec["units"]["dose"] == "Gy per fraction"
@@ -125,7 +127,7 @@ def test_dose4d_phases_and_accumulation_get_the_one_calibration_factor():
     rho, lab, _ = reference_phantom(100.0)
     plan = Plan.from_dict({"beam": [_linac(80.0)], "materials": {1: "water"},
                            "calibration": _cal(reference_histories=20_000)})
-    r = simulate(rho, plan, TransportSettings(2000, 2, 3), labels=lab, progress=False)
+    r = simulate(rho, plan, TransportSettings(2000, 2, 3, physics="kerma"), labels=lab, progress=False)
     acc = AccumulatedDose(r.dose_gy.copy(), r.dose_std_gy.copy(), r.mass_g, np.ones(1), 0.0)
     d4 = absolute_dose4d(Dose4D(None, [r, r], acc, None), plan)
     s = d4.results[0].record()["calibration_scale"]

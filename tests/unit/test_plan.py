@@ -100,7 +100,7 @@ def test_bad_settings_raise_plan_error(kwargs, match):
 
 
 def test_tally_memory_cap():
-    settings = TransportSettings(100, 10, max_tally_bytes=8 * 10 * 1000)
+    settings = TransportSettings(100, 10, max_tally_bytes=8 * 10 * 1000, physics="kerma")
     settings.check_tally_size(1000)
     with pytest.raises(PlanError, match="fewer batches"):
         settings.check_tally_size(1001)

@@ -63,7 +63,8 @@ def water_ct(tmp_path_factory):
 def _dose(tmp, *extra):
     from tetdose.cli import main
 
-    return main(["dose", "--ct", str(tmp / "ct.nrrd"), "--labels", str(tmp / "labels.nrrd"),
+    return main(["dose", "--physics", "kerma",
+                 "--ct", str(tmp / "ct.nrrd"), "--labels", str(tmp / "labels.nrrd"),
                  "--histories", "4000", "--batches", "4", "-q", *extra])
 
 

@@ -163,7 +163,7 @@ def test_cli_register_deform_evaluate_chain(tmp_path):
     (tmp_path / "plan.toml").write_text('[[beam]]\ntype = "parallel"\nenergy_mev = 1.25\n'
                                         'position_mm = [0.0, -200.0, 0.0]\n'
                                         'direction = [0.0, 1.0, 0.0]\nfield_mm = [40.0, 40.0]\n')
-    assert main(["dose4d", "-q", "--phases", str(tmp_path / "ph"), "--ct4d",
+    assert main(["dose4d", "--physics", "kerma", "-q", "--phases", str(tmp_path / "ph"), "--ct4d",
                  str(tmp_path / "ct4d"), "--plan", str(tmp_path / "plan.toml"), "--histories",
                  "2e3", "-o", str(tmp_path / "d4")]) == 0
     d4 = json.loads((tmp_path / "d4" / "summary.json").read_text())

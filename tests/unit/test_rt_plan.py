@@ -129,7 +129,7 @@ def test_vmat_photons_start_on_the_arc_and_pass_the_leaves_of_their_gantry_angle
     gantry plane), and crosses the isocentre plane inside the MLC aperture interpolated at its
     gantry angle (in one of the two arcs)."""
     plan = Plan.from_rt_plan(write_vmat_plan(tmp_path / "vmat.dcm", iso=ISO))
-    src = source_arrays(plan, TransportSettings(n_histories=10, n_batches=2))
+    src = source_arrays(plan, TransportSettings(n_histories=10, n_batches=2, physics="kerma"))
     segs = plan.sources
     starts = np.array([s.start.gantry_deg for s in segs])
     for i in range(3000):
@@ -157,7 +157,7 @@ def test_sampled_static_sources_match_the_control_points(tmp_path):
     / SAD² (equal fluence per MU)."""
     plan = Plan(treatment_beams=_plan().treatment_beams[:3])
     back = Plan.from_rt_plan(write_rt_plan(plan, tmp_path / "plan.dcm"))
-    src = source_arrays(back, TransportSettings(n_histories=10, n_batches=2))
+    src = source_arrays(back, TransportSettings(n_histories=10, n_batches=2, physics="kerma"))
     expected = []
     for beam in back.treatment_beams:
         cps = beam.control_points

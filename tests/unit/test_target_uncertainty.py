@@ -38,12 +38,12 @@ def test_region_uncertainty_is_the_batch_standard_error_of_the_region_dose():
 
 def test_run_stops_at_the_target_and_keeps_its_histories_bitwise():
     world, plan = _world_and_plan()
-    full = simulate(world, plan, TransportSettings(20_000, 40, 3), progress=False)
+    full = simulate(world, plan, TransportSettings(20_000, 40, 3, physics="kerma"), progress=False)
     cells = np.concatenate([np.zeros(0, bool), world.labels.array.ravel() == 1])
     full_u = float(np.sqrt((full.dose_std_gy[cells] ** 2 * full.mass_g[cells] ** 2).sum())
                    / (full.dose_gy[cells] * full.mass_g[cells]).sum())
     target = 2.0 * full_u * np.sqrt(40 / 8)  # reachable after some 8–16 of the 40 batches
-    st = TransportSettings(20_000, 40, 3, target_uncertainty=target, target_region="core")
+    st = TransportSettings(20_000, 40, 3, target_uncertainty=target, target_region="core", physics="kerma")
     early = simulate(world, plan, st, progress=False)
     info = early.extra["target"]
     assert info["reached"] and info["batches"] < 40 and info["achieved"] <= target
@@ -56,9 +56,10 @@ def test_run_stops_at_the_target_and_keeps_its_histories_bitwise():
 def test_target_needs_a_structure_and_a_sane_value():
     world, plan = _world_and_plan()
     with pytest.raises(PlanError, match="target-region"):
-        simulate(world, plan, TransportSettings(1000, 4, target_uncertainty=0.01), progress=False)
+        simulate(world, plan, TransportSettings(1000, 4, target_uncertainty=0.01, physics="kerma"),
+                 progress=False)
     with pytest.raises(PlanError, match="relative standard error"):
-        TransportSettings(1000, 4, target_uncertainty=1.0)
+        TransportSettings(1000, 4, target_uncertainty=1.0, physics="kerma")
     assert relative_uncertainty("1%") == pytest.approx(0.01)
     assert relative_uncertainty("0.02") == pytest.approx(0.02)
     with pytest.raises(argparse.ArgumentTypeError):

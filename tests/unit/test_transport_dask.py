@@ -16,7 +16,7 @@ from helpers import box_mesh, grid_for
 
 PLAN = Plan((PhotonSource("parallel", [0.0, 0.0, -20.0], [0, 0, 1], energies_mev=[1.25],
                           field_mm=[20.0, 20.0]),))
-SETTINGS = TransportSettings(3000, 6, 17, estimator="analog")
+SETTINGS = TransportSettings(3000, 6, 17, estimator="analog", physics="kerma")
 
 
 @pytest.fixture(scope="module")

@@ -80,6 +80,6 @@ def test_vmat_rt_plan_equals_fine_step_and_shoot_of_its_control_points(geometry,
     plan = Plan.from_dict({"rtplan": "vmat.dcm", "materials": {1: "water"}},
                           base_dir=write_vmat_plan(tmp_path / "vmat.dcm").parent)
     rho, lab = geometry
-    r = simulate(rho, plan, TransportSettings(N, 20, 7), labels=lab, progress=False)
+    r = simulate(rho, plan, TransportSettings(N, 20, 7, physics="kerma"), labels=lab, progress=False)
     vmat = (r.dose_gy.reshape(rho.grid.shape), r.dose_std_gy.reshape(rho.grid.shape))
     _agree(vmat, dose(_step_and_shoot(plan, 4), N, 8, geometry), rho.grid)

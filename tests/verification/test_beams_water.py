@@ -40,7 +40,7 @@ def _run(spec, surface_y, n, seed, *, jaws=(-50, 50, -50, 50), mlc=None, lat_x=N
     if mlc is not None:
         beam["mlc"] = mlc
     plan = Plan.from_dict({"beam": [beam], "materials": {1: "water"}})
-    r = simulate(rho, plan, TransportSettings(n, 10, seed), labels=lab, progress=False)
+    r = simulate(rho, plan, TransportSettings(n, 10, seed, physics="kerma"), labels=lab, progress=False)
     shape = rho.grid.shape  # (z, y, x)
     depth = rho.grid.origin_mm[1] + np.arange(shape[1]) * rho.grid.spacing_mm[1] - surface_y
     return (r.dose_gy.reshape(shape), r.dose_std_gy.reshape(shape), depth,
@@ -122,7 +122,7 @@ def test_kerma_in_vacuum_falls_as_inverse_square():
         plan = Plan.from_dict({"beam": [{"type": "linac", "spectrum": "Co60",
                                          "isocenter_mm": [0, 0, 0],
                                          "jaws_mm": [-3, 3, -3, 3]}], "materials": {1: "water"}})
-        r = simulate(Image(rho, grid), plan, TransportSettings(2_000_000, 10, 20 + k),
+        r = simulate(Image(rho, grid), plan, TransportSettings(2_000_000, 10, 20 + k, physics="kerma"),
                      labels=Image(lab, grid), progress=False)
         i = np.ravel_multi_index((1, 1, 1), grid.shape)
         out.append((dist, r.dose_gy[i], r.dose_std_gy[i]))

@@ -39,14 +39,14 @@ def ct_water():
 
 @pytest.fixture(scope="module")
 def static_run():
-    settings = TransportSettings(n_histories=20_000, n_batches=10, seed=5)
+    settings = TransportSettings(n_histories=20_000, n_batches=10, seed=5, physics="kerma")
     return run_dose4d(static_series(), PLAN, settings, ct_hu=ct_water()), settings
 
 
 def test_static_accumulation_equals_single_phase_in_distribution(static_run):
     run, settings = static_run
     single = simulate(run.series.mesh(0), PLAN,
-                      TransportSettings(n_histories=60_000, n_batches=10, seed=77))
+                      TransportSettings(n_histories=60_000, n_batches=10, seed=77, physics="kerma"))
     acc = run.accumulated
     hot = single.dose_gy > 0.2 * single.dose_gy.max()
     z = (acc.dose_gy - single.dose_gy)[hot] / np.hypot(acc.dose_std_gy, single.dose_std_gy)[hot]
@@ -96,7 +96,7 @@ def test_cli_deform_then_dose4d(tmp_path):
         'direction = [0.0, 0.0, 1.0]\nfield_mm = [20.0, 20.0]\n')
     assert main(["deform", "-q", "--mesh", str(tmp_path / "mapped.vtu"), "--breathing",
                  "--n-phases", "3", "--amplitude-mm", "4", "-o", str(tmp_path / "phases")]) == 0
-    assert main(["dose4d", "-q", "--phases", str(tmp_path / "phases"), "--plan",
+    assert main(["dose4d", "--physics", "kerma", "-q", "--phases", str(tmp_path / "phases"), "--plan",
                  str(tmp_path / "plan.toml"), "--histories", "4000", "--batches", "4",
                  "--like", str(tmp_path / "ct.nrrd"), "-o", str(tmp_path / "dose4d")]) == 0
     acc = read_mesh(tmp_path / "dose4d" / "accumulated.vtu")

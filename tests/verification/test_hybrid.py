@@ -24,7 +24,7 @@ SLAB_PLAN = Plan((PhotonSource("parallel", [0.0, 0.0, -40.0], [0, 0, 1], energie
 
 
 def _settings(n, stream, estimator="track_length", seed=3):
-    return TransportSettings(n, 10, seed, estimator=estimator, stream=stream)
+    return TransportSettings(n, 10, seed, estimator=estimator, stream=stream, physics="kerma")
 
 
 def _batch_sums(result, cells):
@@ -250,7 +250,8 @@ def test_rays_along_voxel_edges_mesh_vertices_and_faces_are_never_lost():
              PhotonSource("pencil", [-60.0, 0.0, 50.0], [1, 0, 0], energies_mev=[1.0]),
              PhotonSource("pencil", [-60.0, 25.0, 100.0], [1, 0, 0], energies_mev=[1.0]),
              PhotonSource("point", [0.0, 0.0, 50.0], [0, 0, 1], energies_mev=[1.0]))
-    res = simulate(world, Plan(beams), TransportSettings(1_000_000, 10, 5, estimator="analog"),
+    res = simulate(world, Plan(beams),
+                   TransportSettings(1_000_000, 10, 5, estimator="analog", physics="kerma"),
                    progress=False)
     _ledger_closes(res)
     rec = res.record()
@@ -274,7 +275,7 @@ def test_same_seed_same_bits_for_the_hybrid_with_one_or_two_threads(tmp_path):
         from tetdose.transport import TransportSettings, World, simulate
         mesh, ct = _slab_world()
         r = simulate(World(mesh=mesh, density=ct), SLAB_PLAN,
-                     TransportSettings(4000, 8, 9), progress=False)
+                     TransportSettings(4000, 8, 9, physics="kerma"), progress=False)
         np.save(sys.argv[1], np.concatenate([r.energy_per_batch_mev.ravel(),
                                              r.ledger_per_batch_mev.ravel()]))
     """))
@@ -313,9 +314,11 @@ def test_cli_dose_on_mesh_inside_ct_then_compare(tmp_path):
         field_mm = [50.0, 50.0]
     """))
     common = ["--plan", str(tmp_path / "plan.toml"), "--histories", "4e3", "--seed", "2", "-q"]
-    assert main(["dose", "--mesh", str(tmp_path / "mapped.vtu"), "--ct", str(tmp_path / "ct.nrrd"),
+    assert main(["dose", "--physics", "kerma",
+                 "--mesh", str(tmp_path / "mapped.vtu"), "--ct", str(tmp_path / "ct.nrrd"),
                  "-o", str(tmp_path / "dose.vtu"), *common]) == 0
-    assert main(["dose", "--ct", str(tmp_path / "ct.nrrd"), "-o", str(tmp_path / "vox.nrrd"),
+    assert main(["dose", "--physics", "kerma",
+                 "--ct", str(tmp_path / "ct.nrrd"), "-o", str(tmp_path / "vox.nrrd"),
                  *common]) == 0
     rec = json.loads((tmp_path / "dose.json").read_text())
     assert rec["world"] == "hybrid" and rec["lost_photons"] == 0 and rec["n_tets"] == mesh.n_tets

@@ -26,7 +26,8 @@ def test_million_photons_cross_every_interface_none_lost() -> None:
     # box 3 (crosses 3|4 and both boxes' outer surfaces), 1 MeV, thin material: most photons
     # leave through every interface on their way.
     plan = Plan((PhotonSource("point", list(INNER_C)), PhotonSource("point", box3.tolist())))
-    result = simulate(mesh, plan, TransportSettings(n_histories=1_000_000, n_batches=10, seed=3),
+    result = simulate(mesh, plan, TransportSettings(n_histories=1_000_000, n_batches=10, seed=3,
+                                                    physics="kerma"),
                       progress=False)
     assert result.lost_photons == 0
     assert result.crossings > 5_000_000  # every history crossed several tetrahedra

@@ -164,7 +164,7 @@ ADVERSARIAL_PLAN = Plan(
 @pytest.mark.parametrize("estimator", ["analog", "track_length"])
 def test_energy_ledger_closes_with_no_lost_photons(estimator):
     res = simulate(_slab_mesh_with_regions(), ADVERSARIAL_PLAN,
-                   TransportSettings(4000, 4, 3, estimator=estimator), progress=False)
+                   TransportSettings(4000, 4, 3, estimator=estimator, physics="kerma"), progress=False)
     led = res.ledger
     closing = led["deposited_mev"] + led["escaped_mev"] + led["cutoff_mev"] + led["lost_mev"]
     assert closing == pytest.approx(led["source_mev"], rel=1e-9)
@@ -195,7 +195,7 @@ def _z(a, sa, b, sb):
 
 def test_mesh_and_voxel_dose_agree_on_homogeneous_water(water_box):
     n, mesh, image, plan = water_box
-    settings = TransportSettings(20_000, 10, 5)
+    settings = TransportSettings(20_000, 10, 5, physics="kerma")
     rm = simulate(mesh, plan, settings, progress=False)
     rv = simulate(image, plan, settings, progress=False)
     e_m = np.stack([voxel_energy_from_mesh(r, n) for r in rm.energy_per_batch_mev])
@@ -212,9 +212,9 @@ def test_mesh_and_voxel_dose_agree_on_homogeneous_water(water_box):
 
 def test_track_length_and_analog_agree(water_box):
     _, mesh, _, plan = water_box
-    ra = simulate(mesh, plan, TransportSettings(20_000, 10, 11, estimator="analog"),
+    ra = simulate(mesh, plan, TransportSettings(20_000, 10, 11, estimator="analog", physics="kerma"),
                   progress=False)
-    rt = simulate(mesh, plan, TransportSettings(20_000, 10, 12, estimator="track_length"),
+    rt = simulate(mesh, plan, TransportSettings(20_000, 10, 12, estimator="track_length", physics="kerma"),
                   progress=False)
     ea = ra.energy_per_batch_mev.sum(1) / ra.histories_per_batch
     et = rt.energy_per_batch_mev.sum(1) / rt.histories_per_batch
@@ -231,8 +231,8 @@ def test_track_length_and_analog_agree(water_box):
 
 def test_sigma_scales_as_inverse_sqrt_n(water_box):
     _, mesh, _, plan = water_box
-    r1 = simulate(mesh, plan, TransportSettings(8_000, 40, 21), progress=False)
-    r4 = simulate(mesh, plan, TransportSettings(32_000, 40, 22), progress=False)
+    r1 = simulate(mesh, plan, TransportSettings(8_000, 40, 21, physics="kerma"), progress=False)
+    r4 = simulate(mesh, plan, TransportSettings(32_000, 40, 22, physics="kerma"), progress=False)
     ok = (r1.relative_uncertainty > 0) & (r1.relative_uncertainty < 0.1)
     ratio = np.median(r1.dose_std_gy[ok] / r4.dose_std_gy[ok])
     assert ok.sum() > 50 and ratio == pytest.approx(2.0, rel=0.12)
@@ -244,7 +244,7 @@ _REPRO = textwrap.dedent("""
     from test_transport import ADVERSARIAL_PLAN, _slab_mesh_with_regions
     from tetdose.transport import TransportSettings, simulate
     r = simulate(_slab_mesh_with_regions(), ADVERSARIAL_PLAN,
-                 TransportSettings(3000, 6, 9, estimator="analog"), progress=False)
+                 TransportSettings(3000, 6, 9, estimator="analog", physics="kerma"), progress=False)
     np.save(sys.argv[1], np.concatenate([r.energy_per_batch_mev.ravel(),
                                          r.ledger_per_batch_mev.ravel()]))
 """)
@@ -267,7 +267,7 @@ def test_same_seed_one_or_two_threads_gives_identical_dose(tmp_path):
 def _cli(argv):
     from tetdose.cli import main
 
-    return main(["dose", *argv])
+    return main(["dose", "--physics", "kerma", *argv])
 
 
 def test_cli_dose_on_mesh_and_on_ct(tmp_path, water_box):

@@ -57,8 +57,8 @@ def _voxel_dose(energy_rows, hist_rows, mass_g):
 
 def compare_engines(n_xy, n_z, n_hist, n_batches):
     mesh, density, labels, plan = slab_phantom(n_xy, n_z)
-    rm = simulate(mesh, plan, TransportSettings(n_hist, n_batches, 101), progress=False)
-    rv = simulate(density, plan, TransportSettings(n_hist, n_batches, 202), labels=labels,
+    rm = simulate(mesh, plan, TransportSettings(n_hist, n_batches, 101, physics="kerma"), progress=False)
+    rv = simulate(density, plan, TransportSettings(n_hist, n_batches, 202, physics="kerma"), labels=labels,
                   progress=False)
     assert rm.lost_photons == 0 and rv.lost_photons == 0
     assert sorted(rm.extra["materials"]) == sorted(rv.extra["materials"]) == sorted(

@@ -26,7 +26,7 @@ from tetdose.cli._common import (
     read_mapped_mesh,
 )
 from tetdose.errors import OptionError, PlanError
-from tetdose.transport.run.settings import ESTIMATORS
+from tetdose.transport.run.settings import ELECTRON_CUTOFF_MEV, ESTIMATORS, PHYSICS
 
 MESH_SUFFIXES = (".vtu", ".vtk", ".xdmf", ".msh")
 
@@ -90,8 +90,17 @@ def add_run_args(parser: argparse.ArgumentParser, per: str = "") -> None:
     parser.add_argument("--seed", type=int_at_least(0), default=1, help="master random seed")
     parser.add_argument("--batches", type=int_at_least(2), default=10,
                         help="independent batches (≥ 2, for σ)")
-    parser.add_argument("--estimator", choices=ESTIMATORS,
-                        default="track_length", help="dose tally (default: track_length)")
+    parser.add_argument("--estimator", choices=ESTIMATORS, default=None,
+                        help="dose tally (default: analog with --physics dose, track_length "
+                             "with kerma)")
+    parser.add_argument("--physics", choices=PHYSICS, default="dose",
+                        help="dose: electrons transported, absorbed dose (default); kerma: "
+                             "charged particles deposit where they are born (fast)")
+    parser.add_argument("--electron-cutoff-mev", type=float_in(0.001, 20.0),
+                        default=ELECTRON_CUTOFF_MEV,
+                        help=f"electron/positron cut-off and δ-ray threshold, kinetic [MeV] "
+                             f"(default {ELECTRON_CUTOFF_MEV})")
+
     parser.add_argument("--target-uncertainty", type=relative_uncertainty, metavar="PCT",
                         help="stop once the mean dose in --target-region has this relative "
                              "standard error (e.g. 1%% or 0.01); --histories is then the cap "
@@ -123,7 +132,8 @@ def run_settings(args: argparse.Namespace, **kw: Any) -> Any:  # noqa: ANN401
     return TransportSettings(n_histories=int(args.histories), n_batches=args.batches,
                              seed=args.seed, estimator=args.estimator,
                              target_uncertainty=args.target_uncertainty,
-                             target_region=args.target_region, **kw)
+                             target_region=args.target_region, physics=args.physics,
+                             electron_cutoff_mev=args.electron_cutoff_mev, **kw)
 
 
 def add_dask_arg(parser: argparse.ArgumentParser) -> None:

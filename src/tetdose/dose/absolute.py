@@ -67,7 +67,8 @@ def _reference(spectrum: str, depth_mm: float, ssd_mm: float, n: int, seed: int
                                      "isocenter_mm": [0.0, iso_y, 0.0],
                                      "jaws_mm": list(REFERENCE_JAWS_MM)}],
                            "materials": {1: "water"}})
-    r = simulate(rho, plan, TransportSettings(n, 10, seed), labels=lab, progress=False)
+    r = simulate(rho, plan, TransportSettings(n, 10, seed, physics="kerma"), labels=lab,
+                 progress=False)  # the reference with electrons: issue 20
     return float(r.dose_gy[index]), float(r.dose_std_gy[index])
 
 

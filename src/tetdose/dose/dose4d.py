@@ -103,6 +103,7 @@ class Dose4D:
         """
         out: dict[str, object] = {
             "world": self.results[0].geometry,
+            "physics": self.results[0].extra.get("physics", "kerma"),
             "phases": [{"phase_percent": float(self.series.phase_percent[k]),
                         "ledger": r.ledger, "lost_photons": r.lost_photons,
                         "relocations": r.relocations, "wall_s": r.wall_s,

@@ -4,7 +4,9 @@ calibration. Frozen dataclasses validated on construction (errors are :class:`Pl
 ``plan.toml`` (parsed with :mod:`tomllib`)::
 
     [[beam]]
-    type = "point"              # "pencil" | "parallel" | "point" | "linac" (see below)
+    type = "point"              # "pencil" | "parallel" | "point" | "linac" (see below) | "volume"
+                                # (tetdose.plan.volume_source)
+    particle = "photon"         # "photon" | "electron" | "positron" (e±: physics "dose")
     energy_mev = 1.0            # or spectrum = "6MV" | "10MV" | "15MV" | "Co60" | "Co60scatter"
                                 # (named, see transport.spectra) | "spectrum.csv" (columns
                                 # energy_mev, weight; also for linac beams)
@@ -73,6 +75,7 @@ from tetdose.plan.beams import LinacBeam
 from tetdose.plan.photon_source import PhotonSource
 from tetdose.plan.segments import DynamicSegment, beam_sources
 from tetdose.plan.spectra import is_named, named_spectrum, read_spectrum
+from tetdose.plan.volume_source import VolumeSource, volume_source_from_dict
 
 if TYPE_CHECKING:
     from tetdose.plan.mu_calibration import MUCalibration
@@ -80,7 +83,7 @@ if TYPE_CHECKING:
 
 _SECTIONS = {"beam", "materials", "normalization", "regions", "prescription", "patient",
              "rtplan", "calibration", "fraction_group"}
-_BEAM_KEYS = {"type", "energy_mev", "spectrum", "position_mm", "direction", "field_mm",
+_BEAM_KEYS = {"type", "particle", "energy_mev", "spectrum", "position_mm", "direction", "field_mm",
               "half_angle_deg", "weight", "field_x_direction"}
 
 
@@ -92,7 +95,8 @@ class Plan:
     (from ``type = "linac"`` tables or an RT Plan); :attr:`sources` is both, flattened (one
     source per control-point interval that delivers meterset: a static point source, or a
     :class:`~tetdose.plan.segments.DynamicSegment` while the machine moves). ``regions``:
-    structure name → region label (``[regions]``).
+    structure name → region label (``[regions]``). ``volume_sources``: :class:`VolumeSource`
+    (``type = "volume"``), particles born inside the world.
     """
 
     beams: tuple[PhotonSource, ...] = ()
@@ -102,14 +106,19 @@ class Plan:
     regions: Mapping[str, int] = field(default_factory=dict)
     prescription: Prescription | None = None
     calibration: MUCalibration | None = None
+    volume_sources: tuple[VolumeSource, ...] = ()
     sources: tuple[PhotonSource | DynamicSegment, ...] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         beams, linacs = tuple(self.beams), tuple(self.treatment_beams)
+        volumes = tuple(self.volume_sources)
         if not all(isinstance(b, PhotonSource) for b in beams) or not all(
-                isinstance(b, LinacBeam) for b in linacs):
-            raise PlanError("plan beams must be PhotonSource and treatment_beams LinacBeam")
-        if not beams and not linacs:
+                isinstance(b, LinacBeam) for b in linacs) or not all(
+                isinstance(v, VolumeSource) for v in volumes):
+            raise PlanError("plan beams must be PhotonSource, treatment_beams LinacBeam and "
+                            "volume_sources VolumeSource")
+        object.__setattr__(self, "volume_sources", volumes)
+        if not beams and not linacs and not volumes:
             raise PlanError("a plan needs at least one beam ([[beam]] table in plan.toml, "
                             "or rtplan = \"plan.dcm\")")
         if self.prescription is not None and self.calibration is not None:
@@ -216,7 +225,9 @@ class Plan:
             raise PlanError("beams must be given as [[beam]] tables")
         position = str(data.get("patient", {}).get("position", "HFS"))
         simple = tuple(_beam_from_dict(b, i, base_dir) for i, b in enumerate(beams)
-                       if b.get("type") != "linac")
+                       if b.get("type") not in ("linac", "volume"))
+        volumes = tuple(volume_source_from_dict(b, i, base_dir) for i, b in enumerate(beams)
+                        if b.get("type") == "volume")
         linacs = [linac_beam_from_dict(b, i, position, base_dir) for i, b in enumerate(beams)
                   if b.get("type") == "linac"]
         dicom_plans = ([base_dir / str(data["rtplan"])] if "rtplan" in data else []) + (
@@ -237,7 +248,8 @@ class Plan:
         return cls(simple, data.get("materials", {}), float(norm.get("particles", 1.0)),
                    tuple(linacs), data.get("regions", {}),
                    Prescription.from_dict(rx) if rx is not None else None,
-                   MUCalibration.from_dict(cal) if cal is not None else None)
+                   MUCalibration.from_dict(cal) if cal is not None else None,
+                   volume_sources=volumes)
 
 
 def _beam_from_dict(d: Mapping[str, Any], i: int, base_dir: Path) -> PhotonSource:
@@ -261,7 +273,8 @@ def _beam_from_dict(d: Mapping[str, Any], i: int, base_dir: Path) -> PhotonSourc
             kind=d["type"], position_mm=d["position_mm"], direction=d.get("direction", (0, 0, 1)),
             energies_mev=energies, line_weights=weights, field_mm=d.get("field_mm", (0.0, 0.0)),
             half_angle_deg=float(d.get("half_angle_deg", 180.0)),
-            weight=float(d.get("weight", 1.0)), field_x_direction=d.get("field_x_direction"))
+            weight=float(d.get("weight", 1.0)), field_x_direction=d.get("field_x_direction"),
+            particle=str(d.get("particle", "photon")))
     except PlanError as exc:
         raise PlanError(f"{where}: {exc}") from None
 

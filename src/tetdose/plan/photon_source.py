@@ -19,6 +19,9 @@ from tetdose.errors import PlanError
 
 #: The one spelling of each source kind (plan.toml ``type``).
 SOURCE_KINDS = ("pencil", "parallel", "point", "linac")
+#: The particles a source may emit (plan.toml ``particle``; electrons and positrons need
+#: physics "dose").
+PARTICLES = ("photon", "electron", "positron")
 
 
 def _unit(vec: Sequence[float], what: str) -> FloatArray:
@@ -35,7 +38,8 @@ def _unit(vec: Sequence[float], what: str) -> FloatArray:
 class PhotonSource:
     """One beam: where photons start [mm], where they go, their energies [MeV] and weight.
 
-    ``energies_mev``/``line_weights`` are discrete spectrum lines (one line: mono-energetic).
+    ``energies_mev``/``line_weights`` are discrete spectrum lines (one line: mono-energetic),
+    kinetic energies for electrons and positrons (``particle``, default photons).
     """
 
     kind: str
@@ -49,12 +53,15 @@ class PhotonSource:
     field_x_direction: Sequence[float] | None = None
     sad_mm: float = 0.0
     aperture_mm: FloatArray | None = None
+    particle: str = "photon"
     e1: FloatArray = field(init=False, repr=False)
     e2: FloatArray = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         if self.kind not in SOURCE_KINDS:
             raise PlanError(f"beam type {self.kind!r} is unknown; use one of {SOURCE_KINDS}")
+        if self.particle not in PARTICLES:
+            raise PlanError(f"beam particle {self.particle!r} is unknown; use one of {PARTICLES}")
         pos = np.asarray(self.position_mm, dtype=np.float64).reshape(-1)
         if pos.shape != (3,) or not np.all(np.isfinite(pos)):
             raise PlanError(f"beam position_mm must be three finite numbers, got {pos}")

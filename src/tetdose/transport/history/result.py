@@ -42,6 +42,11 @@ if TYPE_CHECKING:
 LEDGER_KEYS = ("source_mev", "deposited_mev", "escaped_mev", "cutoff_mev", "lost_mev")
 COUNT_KEYS = ("lost_photons", "relocations", "stack_overflows", "tet_crossings", "voxel_steps",
               "mesh_voxel_switches", "missed_world")
+#: Dose mode (coupled electron transport) adds the e± columns: continuous loss deposited, e±
+#: escaped (a positron with its 2mc²), e± kinetic energy below the cut-off; and counters.
+LEDGER_KEYS_DOSE = (*LEDGER_KEYS, "electron_deposited_mev", "electron_escaped_mev",
+                    "electron_cutoff_mev")
+COUNT_KEYS_DOSE = (*COUNT_KEYS, "electron_steps", "electron_tracks")
 
 
 class FrozenExtra(dict):
@@ -66,7 +71,9 @@ class DoseResult:
     ``mass_g`` (n_cells,); ``ledger_per_batch_mev`` (B, 5) columns :data:`LEDGER_KEYS`;
     ``counts_per_batch`` (B, 7): lost photons, relocations, secondaries dropped off a full stack,
     tetrahedron crossings, voxel steps, mesh ↔ voxel switches, source photons that missed the
-    world (:data:`COUNT_KEYS`).
+    world (:data:`COUNT_KEYS`). Dose mode (electron transport) has 8 ledger and 9 counter
+    columns (:data:`LEDGER_KEYS_DOSE`, :data:`COUNT_KEYS_DOSE`; lost counts every particle);
+    ``extra["physics"]`` says which the dose is.
     ``geometry``: "mesh", "voxel" or "hybrid"; ``n_tets`` leading cells are tetrahedra;
     ``on_grid`` (hybrid only) the mesh's overlap pairs with the grid, for :meth:`combined`.
     """
@@ -134,7 +141,8 @@ class DoseResult:
     def ledger(self) -> dict[str, float]:
         """Energy ledger per source particle [MeV]: source = deposited + escaped + cutoff + lost."""
         tot = self.ledger_per_batch_mev.sum(axis=0) / self.n_histories
-        return {k: float(v) for k, v in zip(LEDGER_KEYS, tot, strict=True)}
+        keys = LEDGER_KEYS if len(tot) == len(LEDGER_KEYS) else LEDGER_KEYS_DOSE
+        return {k: float(v) for k, v in zip(keys, tot, strict=True)}
 
     @property
     def lost_photons(self) -> int:
@@ -149,13 +157,17 @@ class DoseResult:
         """Tetrahedron crossings of all photons (a speed measure; 0 for voxel runs)."""
         return int(self.counts_per_batch[:, 3].sum())
 
+    @property
+    def _count_keys(self) -> tuple[str, ...]:
+        return COUNT_KEYS if self.counts_per_batch.shape[1] == len(COUNT_KEYS) else COUNT_KEYS_DOSE
+
     def record(self) -> dict[str, Any]:
         """The JSON run record: settings, ledger, counters, timing and version."""
         return {
             "histories": self.n_histories, "batches": self.n_batches, "seed": self.seed,
             "estimator": self.estimator, "geometry": self.geometry,
             "normalization_particles": self.particles, "ledger": self.ledger,
-            **{k: int(v) for k, v in zip(COUNT_KEYS, self.counts_per_batch.sum(axis=0),
+            **{k: int(v) for k, v in zip(self._count_keys, self.counts_per_batch.sum(axis=0),
                                          strict=True)},
             "n_tets": self.n_tets, "n_voxels": len(self.mass_g) - self.n_tets,
             "wall_s": self.wall_s, "version": self.version,

@@ -109,6 +109,14 @@ def transport_coefficients(xs, material, energy_mev):
 
 
 @kernel
+def branching_fractions(xs, material, energy_mev):
+    """(μ_incoh/μ_t, μ_pair/μ_t) at E [MeV], interpolated linearly in ln E as :func:`interact`
+    does (dose mode chooses its process with them, :mod:`tetdose.transport.history._coupled`)."""
+    i, f = _grid_position(xs, energy_mev)
+    return _lerp(xs.p_incoherent, material, i, f), _lerp(xs.p_pair, material, i, f)
+
+
+@kernel
 def sample_klein_nishina(energy_mev, state):
     """Sample a Compton scatter on a free electron: (state, E' [MeV], cos θ).
 

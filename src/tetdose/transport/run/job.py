@@ -24,6 +24,7 @@ from tetdose.errors import PlanError
 from tetdose.plan.model import Plan
 from tetdose.transport.geometry._world import WorldGeometry
 from tetdose.transport.geometry.world import MeshOnGrid, World, world_arrays
+from tetdose.transport.history._electron import N_COUNTS_DOSE, N_LEDGER_DOSE
 from tetdose.transport.history._photon import C_MISSED, N_COUNTS, N_LEDGER
 from tetdose.transport.history.result import DoseResult
 from tetdose.transport.physics.xs import (
@@ -33,9 +34,16 @@ from tetdose.transport.physics.xs import (
     material_for_density,
 )
 from tetdose.transport.run._batches import run_world
+from tetdose.transport.run.coupled import run_dose_rows
 from tetdose.transport.run.settings import TransportSettings
 from tetdose.transport.sources._sample import SourceArrays
 from tetdose.transport.sources.arrays import E_MAX_MEV, source_arrays
+from tetdose.transport.sources.species import (
+    ParticleSources,
+    particle_sources,
+    refuse_in_kerma_mode,
+)
+from tetdose.transport.sources.volume import volume_arrays
 
 #: Batches per kernel call and thread (groups keep the progress bar moving).
 BATCH_GROUP_PER_THREAD = 2
@@ -64,6 +72,7 @@ class TransportJob(NamedTuple):
     order: IntArray | None  # kernel tet i is mesh tet order[i]
     n_tets: int
     grid: ImageGrid | None
+    particles: ParticleSources | None = None  # dose mode: e± beams, volume sources (src: photons)
 
 
 def assign_materials(mean_density_g_cm3: FloatArray, region: IntArray | None,
@@ -97,9 +106,17 @@ def build_job(world: World, plan: Plan, settings: TransportSettings
         def to_frame(a: FloatArray, is_dir: bool) -> FloatArray:
             return a @ grid.direction if is_dir else grid.to_grid_frame(a)
     n_tets = 0 if world.mesh is None else world.mesh.n_tets
-    job = TransportJob(world.kind, arrays.geometry, arrays.material_names,
-                       source_arrays(plan, settings, to_frame), arrays.mass_g, arrays.order,
-                       n_tets, grid)
+    particles = None
+    if settings.physics == "dose":
+        points_to_frame = None if to_frame is None else (lambda a: to_frame(a, False))
+        src, particles = particle_sources(
+            plan, settings, to_frame,
+            volume_arrays(plan.volume_sources, world, arrays, points_to_frame))
+    else:
+        refuse_in_kerma_mode(plan)
+        src = source_arrays(plan, settings, to_frame)
+    job = TransportJob(world.kind, arrays.geometry, arrays.material_names, src, arrays.mass_g,
+                       arrays.order, n_tets, grid, particles)
     return job, arrays.on_grid
 
 
@@ -115,6 +132,11 @@ def run_batches(job: TransportJob, xs: CrossSections, settings: TransportSetting
     """Rows ``b_start … b_stop−1`` of (energy [MeV], ledger [MeV], counters), kernel cell order."""
     n = b_stop - b_start
     energy = np.zeros((n, len(job.mass_g)))
+    if job.particles is not None:  # dose mode
+        ledger = np.zeros((n, N_LEDGER_DOSE))
+        counts = np.zeros((n, N_COUNTS_DOSE), dtype=np.int64)
+        run_dose_rows(job, xs, settings, b_start, b_stop, energy, ledger, counts)
+        return energy, ledger, counts
     ledger = np.zeros((n, N_LEDGER))
     counts = np.zeros((n, N_COUNTS), dtype=np.int64)
     run_world(*job.geom, xs, job.src, settings.seed, settings.stream, settings.n_histories,
@@ -230,6 +252,16 @@ def execute(job: TransportJob, on_grid: MeshOnGrid | None, plan: Plan,
                     per_batch=per_batch[:sum(len(r[0]) for r in rows)])
 
 
+def physics_record(settings: TransportSettings) -> dict[str, object]:
+    """What the dose is (absorbed dose or collision kerma) and its cut-offs [MeV], for records."""
+    rec: dict[str, object] = {"physics": settings.physics,
+                              "photon_cutoff_mev": settings.energy_cutoff_mev}
+    if settings.physics == "dose":
+        rec.update(electron_cutoff_mev=settings.electron_cutoff_mev,
+                   max_energy_loss_fraction=settings.max_energy_loss_fraction)
+    return rec
+
+
 def assemble(job: TransportJob, on_grid: MeshOnGrid | None, plan: Plan,
              settings: TransportSettings, rows: list[Rows], wall_s: float,
              extra: dict[str, object] | None = None, *, per_batch: IntArray | None = None
@@ -246,12 +278,12 @@ def assemble(job: TransportJob, on_grid: MeshOnGrid | None, plan: Plan,
     result = DoseResult(energy, per_batch, job.mass_g, ledger, counts, plan.particles,
                         settings.seed, settings.estimator, job.kind, wall_s, __version__,
                         job.grid, {"materials": job.names, "n_cells": len(job.mass_g),
-                                   **(extra or {})},
+                                   **physics_record(settings), **(extra or {})},
                         n_tets=job.n_tets, on_grid=on_grid)
     if not np.any(energy):
         warnings.warn("the dose is zero everywhere: no photon interacted in the world (is it "
                       "vacuum, or do the beams only graze it?)", stacklevel=3)
     if result.lost_photons > 1e-4 * settings.n_histories:
-        warnings.warn(f"{result.lost_photons} photons were lost in the geometry "
+        warnings.warn(f"{result.lost_photons} particles were lost in the geometry "
                       f"({result.relocations} relocations); check the mesh", stacklevel=3)
     return result

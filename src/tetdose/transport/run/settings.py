@@ -1,4 +1,15 @@
-"""Run settings of a transport: histories, batches, seed, cut-off, estimator, tally budget."""
+"""Run settings of a transport: histories, batches, seed, physics, cut-offs, estimator, tally budget.
+
+``physics``: ``"dose"`` (default) transports the electrons and positrons photons set in motion
+(condensed history, :mod:`tetdose.transport.history._electron`) and scores the energy they
+deposit: absorbed dose. ``"kerma"`` deposits every charged particle's energy where it is born
+(collision kerma, the fast approximation of earlier versions, bit for bit). Electron and positron
+sources need ``"dose"``. Cut-offs (kinetic energies): ``energy_cutoff_mev`` for photons (also
+the bremsstrahlung production threshold k_c), ``electron_cutoff_mev`` for e± (also the δ-ray
+production threshold Δ); ``max_energy_loss_fraction`` is the largest fraction of its energy an
+electron may lose in one step (EGSnrc's ESTEPE). The estimator is ``"track_length"`` (kerma
+default) or ``"analog"``; dose mode scores the analog energy deposition only.
+"""
 
 from __future__ import annotations
 
@@ -8,19 +19,26 @@ from tetdose.errors import PlanError
 
 #: The one spelling of each dose estimator (`--estimator`).
 ESTIMATORS = ("analog", "track_length")
+#: The one spelling of each physics model (`--physics`).
+PHYSICS = ("dose", "kerma")
+#: Defaults of the electron settings (cut-off [MeV], ESTEPE).
+ELECTRON_CUTOFF_MEV = 0.2
+MAX_ENERGY_LOSS_FRACTION = 0.25
 #: Largest tally (n_batches × n_cells × 8 bytes) accepted by default.
 MAX_TALLY_BYTES = 2 * 1024**3
 
 
 @dataclass(frozen=True)
 class TransportSettings:
-    """Run settings: histories, batches (for the uncertainty), seed, cut-off [MeV], estimator."""
+    """Run settings: histories, batches (for the uncertainty), seed, photon cut-off [MeV],
+    estimator (``None``: track_length for kerma, analog for dose), physics, electron cut-off
+    [MeV], largest energy-loss fraction per electron step (module docstring)."""
 
     n_histories: int
     n_batches: int = 10
     seed: int = 1
     energy_cutoff_mev: float = 0.01
-    estimator: str = "track_length"
+    estimator: str | None = None
     stream: int = 0
     max_tally_bytes: int = MAX_TALLY_BYTES
     #: Stop once the relative standard error of the mean dose in ``target_region`` is at most this
@@ -28,6 +46,9 @@ class TransportSettings:
     target_uncertainty: float | None = None
     #: Structure of the target (a plan [regions] name or a label); None: the prescription's.
     target_region: str | int | None = None
+    physics: str = "dose"
+    electron_cutoff_mev: float = ELECTRON_CUTOFF_MEV
+    max_energy_loss_fraction: float = MAX_ENERGY_LOSS_FRACTION
 
     def __post_init__(self) -> None:
         if int(self.n_batches) < 2:
@@ -40,11 +61,26 @@ class TransportSettings:
         if not 0.0 < self.energy_cutoff_mev < 20.0:
             raise PlanError(f"energy_cutoff_mev must lie in (0, 20) MeV, got "
                             f"{self.energy_cutoff_mev}")
+        if self.physics not in PHYSICS:
+            raise PlanError(f"physics {self.physics!r} is unknown; use one of {PHYSICS}")
+        if self.estimator is None:
+            object.__setattr__(self, "estimator",
+                               "analog" if self.physics == "dose" else "track_length")
         if self.estimator not in ESTIMATORS:
             raise PlanError(f"estimator {self.estimator!r} is unknown; use one of {ESTIMATORS}")
         if self.target_uncertainty is not None and not 0.0 < self.target_uncertainty < 1.0:
             raise PlanError(f"target_uncertainty is a relative standard error in (0, 1), e.g. "
                             f"0.01 for 1 %; got {self.target_uncertainty}")
+        if self.physics == "dose" and self.estimator != "analog":
+            raise PlanError("physics 'dose' scores the energy electrons deposit (the analog "
+                            "estimator); the track-length estimator gives kerma: use "
+                            "physics='kerma' with it")
+        if not 0.001 <= self.electron_cutoff_mev < 20.0:
+            raise PlanError(f"electron_cutoff_mev must lie in [0.001, 20) MeV, got "
+                            f"{self.electron_cutoff_mev}")
+        if not 0.0 < self.max_energy_loss_fraction <= 0.5:
+            raise PlanError(f"max_energy_loss_fraction must lie in (0, 0.5], got "
+                            f"{self.max_energy_loss_fraction} (0.25 is EGSnrc's default)")
         for name in ("n_histories", "n_batches", "seed", "stream"):
             object.__setattr__(self, name, int(getattr(self, name)))
 

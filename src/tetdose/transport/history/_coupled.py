@@ -1,0 +1,151 @@
+"""njit coupled photon–electron histories (dose mode): photons set electrons in motion.
+
+Photon flights are those of kerma mode (:func:`tetdose.transport.history._photon.flight`, exact
+free paths in linear density, no track-length tally); the interaction is chosen from the same
+branching fractions as :func:`tetdose.transport.physics._photon.interact`, but the charged
+particles it releases are transported instead of depositing their energy where they are born
+(:mod:`tetdose.transport.physics._photon_electrons` gives their energies and directions):
+
+- incoherent: the photon continues with E' (Klein–Nishina), the recoil electron T = E − E' goes
+  along p = E·d − E'·d';
+- photoelectric: the photon is absorbed, a photo-electron T = E goes at the Sauter angle;
+- pair (E > 2mc²): the photon is absorbed, an electron and a positron share E − 2mc² uniformly,
+  each at its leading-term angle, at opposite azimuths.
+
+A charged particle born below the electron cut-off deposits its kinetic energy there (a positron
+then annihilates at rest); a photon below the photon cut-off deposits its energy where it is.
+Every particle waits on one stack (LIFO) of rows ``(E, x, y, z, u, v, w, cell, species)``; the
+dose is the analog energy deposition (the track-length kerma estimator does not apply).
+"""
+
+import math
+
+from tetdose._jit import kernel
+from tetdose._random import next_uniform
+from tetdose.transport.geometry._world import cell_material
+from tetdose.transport.history._electron import (
+    ELECTRON,
+    ELECTRON_MASS_MEV,
+    PHOTON,
+    POSITRON,
+    electron_track,
+    push,
+    stop_charged,
+)
+from tetdose.transport.history._photon import (
+    C_LOST,
+    ESCAPES,
+    L_CUTOFF,
+    L_ESCAPED,
+    L_LOST,
+    LOST,
+    flight,
+)
+from tetdose.transport.physics._photon import (
+    branching_fractions,
+    rotate_direction,
+    sample_klein_nishina,
+)
+from tetdose.transport.physics._photon_electrons import (
+    compton_electron_direction,
+    sample_leading_term_cos,
+    sample_sauter_cos,
+)
+
+_TWO_PI = 2.0 * math.pi
+
+
+@kernel
+def release(state, sp, t, x, y, z, u, v, w, cell, e_cut, tally, ledger, counts, stack, n_stack):
+    """An e± of kinetic energy ``t`` set in motion at (x, y, z): pushed if above the cut-off,
+    else stopped there (:func:`~._electron.stop_charged`)."""
+    if t > e_cut:
+        return state, push(stack, n_stack, sp, t, x, y, z, u, v, w, cell, tally, ledger, counts)
+    return stop_charged(state, sp, t, x, y, z, cell, tally, ledger, counts, stack, n_stack)
+
+
+@kernel
+def photon_interaction(xs, m, cell, e, u, v, w, state, e_cut, tally, ledger, counts, stack,
+                       n_stack, x, y, z):
+    """One photon interaction at (x, y, z) (module docstring): returns
+    (state, alive, e, u, v, w, n_stack) of the photon."""
+    p_incoherent, p_pair = branching_fractions(xs, m, e)
+    state, r = next_uniform(state)
+    if r < p_incoherent:
+        state, e_out, cos_theta = sample_klein_nishina(e, state)
+        state, r_phi = next_uniform(state)
+        u2, v2, w2 = rotate_direction(u, v, w, cos_theta, _TWO_PI * r_phi)
+        eu, ev, ew = compton_electron_direction(e, e_out, u, v, w, u2, v2, w2)
+        state, n_stack = release(state, ELECTRON, e - e_out, x, y, z, eu, ev, ew, cell, e_cut,
+                                 tally, ledger, counts, stack, n_stack)
+        return state, True, e_out, u2, v2, w2, n_stack
+    state, r_phi = next_uniform(state)
+    phi = _TWO_PI * r_phi
+    if r < p_incoherent + p_pair and e > 2.0 * ELECTRON_MASS_MEV:
+        t_total = e - 2.0 * ELECTRON_MASS_MEV
+        state, xi = next_uniform(state)
+        t_minus = xi * t_total
+        state, c_minus = sample_leading_term_cos(t_minus, state)
+        state, c_plus = sample_leading_term_cos(t_total - t_minus, state)
+        eu, ev, ew = rotate_direction(u, v, w, c_minus, phi)
+        state, n_stack = release(state, ELECTRON, t_minus, x, y, z, eu, ev, ew, cell, e_cut,
+                                 tally, ledger, counts, stack, n_stack)
+        eu, ev, ew = rotate_direction(u, v, w, c_plus, phi + math.pi)
+        state, n_stack = release(state, POSITRON, t_total - t_minus, x, y, z, eu, ev, ew, cell,
+                                 e_cut, tally, ledger, counts, stack, n_stack)
+        return state, False, 0.0, u, v, w, n_stack
+    state, cos_e = sample_sauter_cos(e, state)
+    eu, ev, ew = rotate_direction(u, v, w, cos_e, phi)
+    state, n_stack = release(state, ELECTRON, e, x, y, z, eu, ev, ew, cell, e_cut, tally, ledger,
+                             counts, stack, n_stack)
+    return state, False, 0.0, u, v, w, n_stack
+
+
+@kernel
+def photon_track(wg, xs, e, cell, x, y, z, u, v, w, state, p_cut, e_cut, tally, ledger, counts,
+                 stack, n_stack):
+    """Follow one photon to its absorption, escape or cut-off; secondaries go on the stack.
+    Returns (state, n_stack)."""
+    while True:
+        if e < p_cut:
+            ledger[L_CUTOFF] += e
+            tally[cell] += e
+            return state, n_stack
+        state, xi = next_uniform(state)
+        out, cell2, x, y, z = flight(wg, xs, e, cell, x, y, z, u, v, w, -math.log(1.0 - xi),
+                                     False, tally, counts)
+        if out == ESCAPES:
+            ledger[L_ESCAPED] += e
+            return state, n_stack
+        if out == LOST:
+            ledger[L_LOST] += e
+            counts[C_LOST] += 1
+            return state, n_stack
+        cell = cell2
+        state, alive, e, u, v, w, n_stack = photon_interaction(
+            xs, cell_material(wg, cell), cell, e, u, v, w, state, e_cut, tally, ledger, counts,
+            stack, n_stack, x, y, z)
+        if not alive:
+            return state, n_stack
+
+
+@kernel
+def coupled_history(wg, xs, et, sig_hat, sp, e, cell, x, y, z, u, v, w, state, p_cut, f_loss,
+                    tally, ledger, counts, stack, bcell, bcol):
+    """Follow one source particle (species ``sp``, energy [MeV], already in global ``cell``) and
+    every secondary to the end. Returns the RNG state."""
+    n_stack = 0
+    while True:
+        if sp == PHOTON:
+            state, n_stack = photon_track(wg, xs, e, cell, x, y, z, u, v, w, state, p_cut,
+                                          et.cutoff_mev, tally, ledger, counts, stack, n_stack)
+        else:
+            state, n_stack = electron_track(wg, et, sig_hat, sp, e, cell, x, y, z, u, v, w, state,
+                                            f_loss, tally, ledger, counts, stack, n_stack, bcell,
+                                            bcol)
+        if n_stack == 0:
+            return state
+        n_stack -= 1
+        r = stack[n_stack]
+        e, x, y, z, u, v, w = r[0], r[1], r[2], r[3], r[4], r[5], r[6]
+        cell, sp = int(r[7]), int(r[8])

@@ -1,0 +1,225 @@
+"""njit straight segments of a given column density through the world (electron steps).
+
+An electron step is a mass thickness s [g/cm²]; a segment of it is a straight move until the
+column density ``C = ∫ρ dl`` [mm·g/cm³] (= s·MM_PER_CM) is used up. Inside tet k the density
+along p + l·d is ρ_p + a·l (a = ∇ρ_k·d), so the column to the exit face at l = t is
+ρ_p·t + a·t²/2, and a column C* < C(t) is reached at the root
+``l = 2C*/(ρ_p + √(ρ_p² + 2aC*))`` — exact for the linear density, no sub-stepping (the same
+algebra as the photon free path, :mod:`tetdose.transport.history._photon`). In a voxel the
+density is constant. The walk crosses tets (face to face), voxels (Amanatides–Woo), switches
+between mesh and voxels at the exact hit points as photons do, and crosses vacuum (outside the
+mesh and the grid: no mass, so the column does not change) to the next entry; it stops early
+
+- at a cell of another material (``SEG_MATERIAL``: the point on the interface, the new cell);
+- when the buffer of crossed cells is full (``SEG_FULL``, at a cell boundary);
+- when nothing lies ahead (``SEG_ESCAPED``) or the walk is lost (``SEG_LOST``).
+
+Every cell crossed with a positive column is appended to ``(bcell, bcol)`` with that column
+(consecutive entries of one cell merged), so the caller can share the step's energy loss in
+proportion to the mass thickness in each cell. The buffer always keeps two free entries.
+"""
+
+import math
+
+from tetdose._jit import kernel
+from tetdose.transport.geometry._tet import (
+    MAX_ZERO_STEPS,
+    SUPPORTING,
+    density_at,
+    exit_face,
+    next_tet,
+    relocate,
+)
+from tetdose.transport.geometry._voxel import dda_init, dda_step
+from tetdose.transport.geometry._world import (
+    HIT_TOL_MM,
+    cell_material,
+    mesh_hit_in_voxel,
+    vacuum_flight,
+    voxel_cell_at,
+    voxel_ijk,
+)
+from tetdose.transport.history._photon import (
+    C_CROSSINGS,
+    C_RELOCATIONS,
+    C_SWITCHES,
+    C_VOXEL_STEPS,
+    MAX_RELOCATIONS,
+    MAX_SWITCHES,
+    RELOCATE_NUDGE_MM,
+)
+
+#: Segment outcomes.
+SEG_DONE, SEG_MATERIAL, SEG_FULL, SEG_ESCAPED, SEG_LOST = 0, 1, 2, 3, 4
+#: Internal outcomes of the mesh and voxel parts.
+_LEFT, _ENTERS = 5, 6
+
+
+@kernel
+def _append(bcell, bcol, nb, cell, col):
+    """Add column ``col`` of ``cell`` to the buffer (merged with the last entry if the same)."""
+    if col <= 0.0:
+        return nb
+    if nb > 0 and bcell[nb - 1] == cell:
+        bcol[nb - 1] += col
+        return nb
+    bcell[nb] = cell
+    bcol[nb] = col
+    return nb + 1
+
+
+@kernel
+def segment_mesh(g, k, entry, x, y, z, u, v, w, need, mat, bcell, bcol, nb, counts):
+    """Walk the mesh from tet ``k`` (entered through face ``entry``, −1 if unknown) until the
+    column ``need`` [mm·g/cm³] is used up: (outcome, cell, entry, x, y, z, need left, nb).
+
+    Outcomes: SEG_DONE (cell = the tet it ends in), SEG_MATERIAL / SEG_FULL (cell, entry = the
+    next tet and its entry face), _LEFT (left the mesh: cell = the face's link, −1 or
+    SUPPORTING), SEG_LOST.
+    """
+    zero_steps = 0
+    n_reloc = 0
+    crossings = 0
+    while True:
+        f, t = exit_face(g, k, x, y, z, u, v, w, entry)
+        if f < 0 or zero_steps > MAX_ZERO_STEPS:
+            counts[C_RELOCATIONS] += 1
+            n_reloc += 1
+            k = relocate(g, x, y, z, u, v, w, RELOCATE_NUDGE_MM)
+            if k < 0 or n_reloc > MAX_RELOCATIONS:
+                counts[C_CROSSINGS] += crossings
+                return SEG_LOST, k, -1, x, y, z, need, nb
+            x += RELOCATE_NUDGE_MM * u
+            y += RELOCATE_NUDGE_MM * v
+            z += RELOCATE_NUDGE_MM * w
+            entry = -1
+            zero_steps = 0
+            if g.material[k] != mat:
+                counts[C_CROSSINGS] += crossings
+                return SEG_MATERIAL, k, -1, x, y, z, need, nb
+            continue
+        rho0 = max(density_at(g, k, x, y, z), 0.0)
+        a = g.density[k, 0] * u + g.density[k, 1] * v + g.density[k, 2] * w
+        col_exit = max(rho0 * t + 0.5 * a * t * t, 0.0)
+        if need < col_exit:
+            den = rho0 + math.sqrt(max(rho0 * rho0 + 2.0 * a * need, 0.0))
+            s = min(2.0 * need / den, t) if den > 0.0 else t
+            nb = _append(bcell, bcol, nb, k, need)
+            counts[C_CROSSINGS] += crossings
+            return SEG_DONE, k, entry, x + s * u, y + s * v, z + s * w, 0.0, nb
+        nb = _append(bcell, bcol, nb, k, col_exit)
+        need -= col_exit
+        zero_steps = zero_steps + 1 if t == 0.0 else 0
+        x, y, z = x + t * u, y + t * v, z + t * w
+        nxt = g.link[k, f]
+        k, entry = next_tet(g, k, f)
+        crossings += 1
+        out = -1
+        if k < 0:
+            out, k = _LEFT, nxt
+        elif g.material[k] != mat:
+            out = SEG_MATERIAL
+        elif nb >= bcell.shape[0] - 2:
+            out = SEG_FULL
+        if out >= 0:
+            counts[C_CROSSINGS] += crossings
+            return out, k, entry, x, y, z, need, nb
+
+
+@kernel
+def segment_voxel(wg, vid, x, y, z, u, v, w, need, mat, t_min, bcell, bcol, nb, counts):
+    """Walk the voxels from voxel ``vid``: (outcome, cell, x, y, z, need left, nb).
+
+    Outcomes: SEG_DONE, SEG_MATERIAL, SEG_FULL (cell = the global voxel cell), _ENTERS (reached
+    the mesh: cell = the tet entered at the exact hit point), _LEFT (left the grid). Entering
+    hits at distances ≤ ``t_min`` [mm] are ignored (the photon flight's guard).
+    """
+    g = wg.vox
+    off = wg.tet.planes.shape[0]
+    nx, ny = g.n[0], g.n[1]
+    i, j, k = voxel_ijk(g, vid)
+    sx, sy, sz, tx, ty, tz, dx, dy, dz = dda_init(g, i, j, k, x, y, z, u, v, w)
+    t_cur = 0.0
+    steps = 0
+    while True:
+        vid = (k * ny + j) * nx + i
+        m = g.material[vid]
+        listed = m < 0
+        if listed:
+            m = -m - 1
+        out = -1
+        if steps > 0 and m != mat:
+            out = SEG_MATERIAL
+        elif steps > 0 and nb >= bcell.shape[0] - 2:
+            out = SEG_FULL
+        if out >= 0:
+            counts[C_VOXEL_STEPS] += steps
+            return out, off + vid, x + t_cur * u, y + t_cur * v, z + t_cur * w, need, nb
+        t_end = min(tx, ty, tz)
+        b = -1
+        if listed:
+            b, t_hit = mesh_hit_in_voxel(wg, i, j, k, x, y, z, u, v, w,
+                                         max(t_cur - HIT_TOL_MM, t_min), t_end)
+            if b >= 0:
+                t_end = max(t_hit, t_cur)
+        rho = g.density[vid]
+        col = rho * max(t_end - t_cur, 0.0)
+        if need < col:
+            t_cur += need / rho
+            nb = _append(bcell, bcol, nb, off + vid, need)
+            counts[C_VOXEL_STEPS] += steps
+            return SEG_DONE, off + vid, x + t_cur * u, y + t_cur * v, z + t_cur * w, 0.0, nb
+        nb = _append(bcell, bcol, nb, off + vid, col)
+        need -= col
+        if b >= 0:
+            counts[C_VOXEL_STEPS] += steps
+            return (_ENTERS, wg.tet.bnd_tet[b], x + t_end * u, y + t_end * v, z + t_end * w,
+                    need, nb)
+        t_cur = max(t_end, t_cur)
+        steps += 1
+        i, j, k, tx, ty, tz, inside = dda_step(i, j, k, tx, ty, tz, sx, sy, sz, dx, dy, dz, g.n)
+        if not inside:
+            counts[C_VOXEL_STEPS] += steps
+            return _LEFT, -1, x + t_cur * u, y + t_cur * v, z + t_cur * w, need, nb
+
+
+@kernel
+def segment(wg, cell, entry, x, y, z, u, v, w, need, mat, bcell, bcol, nb, counts):
+    """Move a straight segment of column ``need`` [mm·g/cm³] from global ``cell`` through the
+    world (module docstring): (outcome, cell, entry, x, y, z, need left, nb).
+
+    The mesh ↔ voxel switches and vacuum gaps follow the photon flight
+    (:func:`tetdose.transport.history._photon.flight`); a cell reached across a switch or a gap
+    that holds another material ends the segment there (SEG_MATERIAL).
+    """
+    m_tets = wg.tet.planes.shape[0]
+    has_vox = wg.vox.density.shape[0] > 0
+    t_min = -HIT_TOL_MM
+    for _ in range(MAX_SWITCHES):
+        if cell < m_tets:
+            x0, y0, z0 = x, y, z
+            out, k, entry, x, y, z, need, nb = segment_mesh(
+                wg.tet, cell, entry, x, y, z, u, v, w, need, mat, bcell, bcol, nb, counts)
+            if out != _LEFT:
+                return out, k, entry, x, y, z, need, nb
+            t_min = HIT_TOL_MM if (x == x0 and y == y0 and z == z0) else -HIT_TOL_MM
+            cell = voxel_cell_at(wg, x, y, z) if has_vox else -1
+            if cell < 0 and (k != SUPPORTING or has_vox):
+                cell, x, y, z = vacuum_flight(wg, x, y, z, u, v, w, max(t_min, 0.0))
+        else:
+            out, cell, x, y, z, need, nb = segment_voxel(
+                wg, cell - m_tets, x, y, z, u, v, w, need, mat, t_min, bcell, bcol, nb, counts)
+            if out != _LEFT and out != _ENTERS:
+                return out, cell, -1, x, y, z, need, nb
+            t_min = -HIT_TOL_MM
+            if out == _LEFT:
+                cell = -1
+                if m_tets > 0:
+                    cell, x, y, z = vacuum_flight(wg, x, y, z, u, v, w, 0.0)
+        entry = -1
+        if cell < 0:
+            return SEG_ESCAPED, -1, -1, x, y, z, need, nb
+        counts[C_SWITCHES] += 1
+        if cell_material(wg, cell) != mat:
+            return SEG_MATERIAL, cell, -1, x, y, z, need, nb
+    return SEG_LOST, cell, -1, x, y, z, need, nb

@@ -1,0 +1,91 @@
+"""njit(parallel) batch loop of dose mode: coupled photon–electron histories, one prange per batch.
+
+The batch layout, the per-history streams ``seed_for(seed, stream, h)`` and the private
+per-batch ledgers are those of :mod:`tetdose.transport.run._batches` (bitwise the same dose
+whatever the thread count). A source particle comes from one of four groups, chosen with the
+cumulative probabilities ``group_cdf``: photon beams, electron beams, positron beams (each a
+:class:`~tetdose.transport.sources._sample.SourceArrays`) and volume sources
+(:class:`~tetdose.transport.sources._volume.VolumeArrays`, born inside the world's cells).
+"""
+
+import numpy as np
+from numba import njit, prange
+
+from tetdose._random import next_uniform, seed_for
+from tetdose.transport.geometry._world import WorldGeometry, start_cell
+from tetdose.transport.history._coupled import coupled_history
+from tetdose.transport.history._electron import (
+    ELECTRON,
+    ELECTRON_MASS_MEV,
+    N_COUNTS_DOSE,
+    N_LEDGER_DOSE,
+    PHOTON,
+    POSITRON,
+    STACK_COLUMNS,
+)
+from tetdose.transport.history._photon import C_MISSED, C_RELOCATIONS, L_ESCAPED, L_SOURCE
+from tetdose.transport.sources._sample import sample_source
+from tetdose.transport.sources._volume import sample_volume
+
+#: Stack depth for mixed particles (a shower waits depth-first: photons, δ-rays, brems,
+#: annihilation photons), and the buffer of cells one electron step may cross.
+STACK_DEPTH = 64
+STEP_CELLS = 256
+
+
+@njit(cache=True, inline="always")
+def _sample_group(wg, src_g, src_e, src_p, vol, group_cdf, state):
+    """(state, species, energy, cell, x, y, z, u, v, w, relocations) of one source particle;
+    cell −1 if a beam particle misses the world."""
+    state, xi = next_uniform(state)
+    group = 0
+    while group < 3 and group_cdf[group] <= xi:
+        group += 1
+    if group == 3:
+        state, sp, e, cell, x, y, z, u, v, w = sample_volume(wg, vol, state)
+        return state, sp, e, cell, x, y, z, u, v, w, 0
+    if group == 0:
+        sp = PHOTON
+        state, e, x, y, z, u, v, w = sample_source(src_g, state)
+    elif group == 1:
+        sp = ELECTRON
+        state, e, x, y, z, u, v, w = sample_source(src_e, state)
+    else:
+        sp = POSITRON
+        state, e, x, y, z, u, v, w = sample_source(src_p, state)
+    cell, x, y, z, n_reloc = start_cell(wg, x, y, z, u, v, w)
+    return state, sp, e, cell, x, y, z, u, v, w, n_reloc
+
+
+@njit(cache=True, parallel=True)
+def run_world_dose(tet, vox, tri_lo, tri_n, tri_start, tri_items, xs, et, sig_hat, src_g, src_e,
+                   src_p, vol, group_cdf, seed, stream, n_hist, n_batches, b_start, b_stop,
+                   photon_cutoff, f_loss, energy, ledger, counts):
+    """Run batches ``b_start … b_stop−1`` (as :func:`~._batches.run_world`): batch b fills row
+    ``b − b_start`` of energy [MeV per cell], ledger (:data:`N_LEDGER_DOSE` columns) and counts
+    (:data:`N_COUNTS_DOSE`). ``et`` electron tables, ``sig_hat`` their hard-event majorant,
+    ``photon_cutoff`` [MeV], ``f_loss`` the largest energy-loss fraction per electron step.
+    """
+    for b in prange(b_start, b_stop):
+        wg = WorldGeometry(tet, vox, tri_lo, tri_n, tri_start, tri_items)
+        stack = np.empty((STACK_DEPTH, STACK_COLUMNS))
+        bcell = np.empty(STEP_CELLS, dtype=np.intp)
+        bcol = np.empty(STEP_CELLS)
+        led = np.zeros(N_LEDGER_DOSE)
+        cnt = np.zeros(N_COUNTS_DOSE, dtype=np.int64)
+        tally = energy[b - b_start]
+        for h in range(b * n_hist // n_batches, (b + 1) * n_hist // n_batches):
+            state = seed_for(seed, stream, h)
+            state, sp, e, cell, x, y, z, u, v, w, n_reloc = _sample_group(
+                wg, src_g, src_e, src_p, vol, group_cdf, state)
+            e_ledger = e + (2.0 * ELECTRON_MASS_MEV if sp == POSITRON else 0.0)
+            led[L_SOURCE] += e_ledger
+            cnt[C_RELOCATIONS] += n_reloc
+            if cell < 0:
+                led[L_ESCAPED] += e_ledger
+                cnt[C_MISSED] += 1
+                continue
+            coupled_history(wg, xs, et, sig_hat, sp, e, cell, x, y, z, u, v, w, state,
+                            photon_cutoff, f_loss, tally, led, cnt, stack, bcell, bcol)
+        ledger[b - b_start, :] = led
+        counts[b - b_start, :] = cnt
