@@ -58,3 +58,22 @@ MILLI = HUCalibration.linear(0.001, 0.0, hu_range=(0.0, 1e6))
 def as_hu(image: Image) -> Image:
     """Density image → HU image under :data:`MILLI`."""
     return image.with_array(image.array * 1000.0)
+
+
+def ray_interval(v: np.ndarray, p: np.ndarray, d: np.ndarray) -> tuple[float, float]:
+    """(t_in, t_out) of the ray p + t·d (t ≥ 0) in the tetrahedron with corners ``v`` (4, 3),
+    by clipping against its four face half-spaces (t_in > t_out: the ray misses it)."""
+    t_in, t_out = 0.0, np.inf
+    for f in range(4):
+        a, b, c = v[[i for i in range(4) if i != f]]
+        nrm = np.cross(b - a, c - a)
+        if np.dot(nrm, v[f] - a) > 0:
+            nrm = -nrm
+        den, dist = np.dot(nrm, d), np.dot(nrm, a - p)
+        if den > 0:
+            t_out = min(t_out, dist / den)
+        elif den < 0:
+            t_in = max(t_in, dist / den)
+        elif dist < 0:
+            t_in = np.inf
+    return t_in, t_out

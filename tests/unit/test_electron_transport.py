@@ -38,6 +38,7 @@ from tetdose.transport.run.settings import TransportSettings
 from tetdose.transport.sources._volume import VolumeArrays, sample_volume
 
 import helpers
+from helpers import ray_interval
 
 MC2 = ELECTRON_MASS_MEV
 
@@ -55,19 +56,7 @@ def _chords(mesh, rho, p, d):
     out = {}
     for k, tet in enumerate(mesh.tets):
         v = mesh.points_mm[tet]
-        t_in, t_out = 0.0, np.inf
-        for f in range(4):
-            a, b, c = v[[i for i in range(4) if i != f]]
-            nrm = np.cross(b - a, c - a)
-            if np.dot(nrm, v[f] - a) > 0:
-                nrm = -nrm
-            den, dist = np.dot(nrm, d), np.dot(nrm, a - p)
-            if den > 0:
-                t_out = min(t_out, dist / den)
-            elif den < 0:
-                t_in = max(t_in, dist / den)
-            elif dist < 0:
-                t_in = np.inf
+        t_in, t_out = ray_interval(v, p, d)
         if t_out - t_in > 1e-9:
             m = np.linalg.solve(np.vstack([v.T, np.ones(4)]), np.eye(4))
             rho_at = lambda t: float(m @ np.append(p + t * d, 1.0) @ rho[tet])  # noqa: E731,B023

@@ -26,6 +26,7 @@ from tetdose.transport.physics._photon import transport_coefficients
 from tetdose.transport.physics.xs import build_cross_sections
 
 import helpers
+from helpers import ray_interval
 
 
 def box_mesh(n, size_mm, origin_mm=(0.0, 0.0, 0.0), jitter=0.0, seed=0):
@@ -52,19 +53,7 @@ def _reference_chords(mesh, rho, p, d):
     out = {}
     for k, tet in enumerate(mesh.tets):
         v = mesh.points_mm[tet]
-        t_in, t_out = 0.0, np.inf
-        for f in range(4):
-            a, b, c = v[[i for i in range(4) if i != f]]
-            nrm = np.cross(b - a, c - a)
-            if np.dot(nrm, v[f] - a) > 0:
-                nrm = -nrm
-            den, dist = np.dot(nrm, d), np.dot(nrm, a - p)
-            if den > 0:
-                t_out = min(t_out, dist / den)
-            elif den < 0:
-                t_in = max(t_in, dist / den)
-            elif dist < 0:
-                t_in = np.inf
+        t_in, t_out = ray_interval(v, p, d)
         if t_out - t_in > 1e-9:
             mid = p + 0.5 * (t_in + t_out) * d
             bary = np.linalg.solve(np.vstack([v.T, np.ones(4)]), np.append(mid, 1.0))

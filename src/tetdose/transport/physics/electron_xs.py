@@ -84,7 +84,7 @@ from scipy.interpolate import CubicSpline
 from tetdose._typing import FloatArray
 from tetdose.errors import OptionError, PlanError
 from tetdose.transport.physics import _electron
-from tetdose.transport.physics.materials import MATERIALS, Material
+from tetdose.transport.physics.materials import MATERIALS, Material, resolve_material
 
 __all__ = [
     "ELECTRON",
@@ -186,19 +186,8 @@ class _Medium(NamedTuple):
     density_g_cm3: float
 
 
-def _resolve(material: Material | str) -> Material:
-    if isinstance(material, Material):
-        return material
-    try:
-        return MATERIALS[material]
-    except KeyError:
-        raise PlanError(
-            f"unknown material {material!r}; choose one of {sorted(MATERIALS)} or pass a Material"
-        ) from None
-
-
 def _medium(material: Material | str) -> _Medium:
-    mat = _resolve(material)
+    mat = resolve_material(material)
     _, elements = _estar()
     missing = [int(z) for z in mat.elements if int(z) not in elements]
     if missing:
@@ -212,7 +201,7 @@ def _medium(material: Material | str) -> _Medium:
 
 def mean_excitation_ev(material: Material | str) -> float:
     """Mean excitation energy I [eV] (ICRU 37 values and Bragg rule; module docstring)."""
-    mat = _resolve(material)
+    mat = resolve_material(material)
     if mat.name in _NAMED_I_EV and mat == MATERIALS.get(mat.name):
         return _NAMED_I_EV[mat.name]
     _, elements = _estar()

@@ -136,3 +136,15 @@ def material_for_density(density_g_cm3: FloatArray) -> IntArray:
         )
     upper = np.asarray(DENSITY_CLASS_UPPER_G_CM3, dtype=np.float64)
     return np.searchsorted(upper, rho, side="right").astype(np.intp)
+
+
+def resolve_material(material: Material | str) -> Material:
+    """A :class:`Material`, or the one of :data:`MATERIALS` named ``material``."""
+    if isinstance(material, Material):
+        return material
+    try:
+        return MATERIALS[material]
+    except KeyError:
+        raise PlanError(
+            f"unknown material {material!r}; choose one of {sorted(MATERIALS)} or pass a Material"
+        ) from None

@@ -59,6 +59,7 @@ from tetdose.transport.physics.materials import (
     MATERIALS,
     Material,
     material_for_density,
+    resolve_material,
 )
 
 __all__ = [
@@ -186,7 +187,7 @@ def mass_coefficients(
     Returns ``(mu_rho (n, 4) [cm²/g] by process, mu_en_rho (n,) [cm²/g])``; formulas in the
     module docstring.
     """
-    mat = _resolve(material)
+    mat = resolve_material(material)
     e = np.atleast_1d(np.asarray(energy_mev, dtype=np.float64))
     if e.size and not (np.all(e >= _DATA_E_MIN_MEV) and np.all(e <= _DATA_E_MAX_MEV)):
         raise PlanError(f"photon energies must lie in {_DATA_E_MIN_MEV}–{_DATA_E_MAX_MEV} MeV")
@@ -215,17 +216,6 @@ def mass_coefficients(
                         / a, 0.0)
     pair = mu[:, 3] * pair_col / e
     return mu, photo + compton + pair
-
-
-def _resolve(material: Material | str) -> Material:
-    if isinstance(material, Material):
-        return material
-    try:
-        return MATERIALS[material]
-    except KeyError:
-        raise PlanError(
-            f"unknown material {material!r}; choose one of {sorted(MATERIALS)} or pass a Material"
-        ) from None
 
 
 def _warn_edges(mat: Material, e_min_mev: float, e_max_mev: float) -> None:
@@ -292,7 +282,7 @@ def _tables(
     mu = np.empty((len(materials), n, 4))
     mu_en = np.empty((len(materials), n))
     for m, name in enumerate(materials):
-        mat = _resolve(name)
+        mat = resolve_material(name)
         _warn_edges(mat, e_min_mev, e_max_mev)
         mu[m], mu_en[m] = mass_coefficients(mat, energies)
     transported = mu[:, :, 1:].sum(axis=2)
