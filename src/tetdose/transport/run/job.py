@@ -258,7 +258,8 @@ def physics_record(settings: TransportSettings) -> dict[str, object]:
                               "photon_cutoff_mev": settings.energy_cutoff_mev}
     if settings.physics == "dose":
         rec.update(electron_cutoff_mev=settings.electron_cutoff_mev,
-                   max_energy_loss_fraction=settings.max_energy_loss_fraction)
+                   max_energy_loss_fraction=settings.max_energy_loss_fraction,
+                   photon_splitting=settings.photon_splitting)
     return rec
 
 
