@@ -39,9 +39,9 @@ one composition.
 deposited (L_E_DEPOSITED), e± escaped (L_E_ESCAPED), e± kinetic energy deposited below the cut-off
 (L_E_CUTOFF), and the net energy Russian roulette removed (L_ROULETTE: the weight × energy of the
 charged particles it killed minus the energy it gave the survivors; zero on average, see
-:mod:`tetdose.transport.history._coupled`). A positron's energy in the ledger is T + 2mc² (its kinetic energy and the
-annihilation energy it releases: in pair production E = T₋ + (T₊ + 2mc²)); its annihilation
-photons then carry the 2mc² on.
+:mod:`tetdose.transport.history._coupled`). A positron's energy in the ledger is T + 2mc² (its
+kinetic energy and the annihilation energy it releases: in pair production E = T₋ + (T₊ + 2mc²));
+its annihilation photons then carry the 2mc² on.
 """
 
 import math

@@ -9,8 +9,9 @@ the bremsstrahlung production threshold k_c), ``electron_cutoff_mev`` for e± (a
 production threshold Δ); ``max_energy_loss_fraction`` is the largest fraction of its energy an
 electron may lose in one step (EGSnrc's ESTEPE). ``photon_splitting`` n follows every source
 photon as n copies of weight 1/n and plays Russian roulette with the electrons they set in motion
-(unbiased; :mod:`tetdose.transport.history._coupled`; dose mode only). The estimator is ``"track_length"`` (kerma
-default) or ``"analog"``; dose mode scores the analog energy deposition only.
+(unbiased; :mod:`tetdose.transport.history._coupled`; dose mode only). The estimator is
+``"track_length"`` (kerma default) or ``"analog"``; dose mode scores the analog energy deposition
+only.
 """
 
 from __future__ import annotations
