@@ -13,14 +13,15 @@ for the first part; ``--no-ompmc`` skips it).
    with its default photon splitting 20 (its efficient setting), tetdose with
    ``photon_splitting`` from ``--split`` (1 = analog). T is the CPU time of the run
    (``time.process_time``) with one thread each (numba ``set_num_threads(1)``, ompmc
-   ``threads=1``), then the wall time with two threads each. σ from 10 batches. Printed: µs per
-   history, σ, ε, and ε(tetdose) / ε(ompmc).
-2. **Tets and hybrid vs voxels** (dose mode, 0.189 MeV electrons, 2 MeV 100 × 100 mm² field, one
-   thread): a 300 mm water box as 30³ voxels of 10 mm, as the structured mesh of the same box
-   (30³ × 6 tets, every voxel cut in six), and as the hybrid world (the mesh of the central
-   150 mm cube inside the voxel box: every history crosses voxels → tets → voxels). Time per
-   history (best CPU of three runs), ratio to voxels, electron steps, tet crossings and voxel
-   steps per history, and the bytes a crossing and a step read (:data:`BYTES`).
+   ``threads=1``), then the wall time with two threads each. σ from :data:`BATCHES` batches.
+   Printed: µs per history, σ, ε, and ε(tetdose) / ε(ompmc).
+2. **Tets and hybrid vs voxels**, and range rejection's gain (dose mode, 0.189 MeV
+   electrons, 2 MeV 100 × 100 mm² field, one thread): a 300 mm water box as 30³ voxels of
+   10 mm, as the structured mesh of the same box (30³ × 6 tets, every voxel cut in six), and as
+   the hybrid world (the mesh of the central 150 mm cube inside the voxel box: every history
+   crosses voxels → tets → voxels). Time per history (best CPU of three runs), ratio to voxels,
+   electron steps, tet crossings and voxel steps per history, and the bytes a crossing and a
+   step read (:data:`BYTES`).
 """
 
 from __future__ import annotations
@@ -57,6 +58,8 @@ PEGS_CUTOFF_MEV = {"700icru": 0.189, "521icru": 0.010}
 #: table entries (range at E and E(1 − f): 4, σ̂: 1, the inverse range by bisection: ≈ 12,
 #: λ₁⁻¹: 2, at a hard event σ_δ, σ_brems, σ_annih: 5) = 176 B, from tables of
 #: 6 × 2 × n_E × 8 B per material that stay in L1/L2 (n_E printed).
+#: Batches of every run (the σ of σ is 1/√(2(B − 1)): 11 % with 40 batches, ε to ±23 %).
+BATCHES = 40
 BYTES = {"tet crossing": 200, "voxel step": 16, "electron step (tables)": 176}
 
 
@@ -71,12 +74,13 @@ def region_efficiency(result, grid: ImageGrid, seconds: float) -> dict[str, tupl
     return out
 
 
-def run_engine(engine: str, case, pegs: str, n: int, threads: int, split: int):  # noqa: ANN001, ANN201
+def run_engine(engine: str, case, pegs: str, n: int, threads: int, split: int,  # noqa: ANN001, ANN201
+               rr_mev: float = 0.0):
     """(result, seconds): CPU seconds with one thread, wall seconds with more."""
     rho, lab = phantom(case.slab)
     cut = PEGS_CUTOFF_MEV[pegs]
-    st = TransportSettings(n, 10, 1, physics="dose", electron_cutoff_mev=cut,
-                           photon_splitting=split)
+    st = TransportSettings(n, BATCHES, 1, physics="dose", electron_cutoff_mev=cut,
+                           photon_splitting=split, range_rejection_mev=rr_mev)
     numba.set_num_threads(threads)
     if engine == "ompmc":
         from tetdose.coupling.ompmc import OmpmcOptions, simulate_ompmc
@@ -105,15 +109,17 @@ def efficiency(args: argparse.Namespace) -> None:
             continue
         rho, _ = phantom(case.slab)
         for pegs in args.pegs.split(","):
-            for threads in (1, 2):
+            for threads in (int(t) for t in args.threads.split(",")):
                 runs = []
                 if not args.no_ompmc:
-                    runs.append(("ompmc", "ompmc", args.ompmc, 20))
-                runs += [(f"tetdose s{s}", "tetdose", args.tetdose, s)
+                    runs.append(("ompmc", "ompmc", args.ompmc, 20, 0.0))
+                runs += [(f"tetdose s{s}", "tetdose", args.tetdose, s, 0.0)
                          for s in (int(x) for x in args.split.split(","))]
+                runs += [(f"tetdose rr{rr:g}", "tetdose", args.tetdose, 1, rr)
+                         for rr in (float(x) for x in args.rr.split(",") if x)]
                 base = {}
-                for label, engine, n, split in runs:
-                    r, sec = run_engine(engine, case, pegs, int(n), threads, split)
+                for label, engine, n, split, rr in runs:
+                    r, sec = run_engine(engine, case, pegs, int(n), threads, split, rr)
                     eff = region_efficiency(r, rho.grid, sec)
                     for region, (rel, eps) in eff.items():
                         if region.startswith("lung") and not case.slab:
@@ -150,10 +156,13 @@ def worlds(args: argparse.Namespace) -> None:
     print(f"{'world':28s} {'µs/hist':>8s} {'× voxels':>8s} {'e steps':>8s} {'tet cross':>9s} "
           f"{'vox steps':>9s}")
     base = None
-    for name, geom in (("voxels 30^3 (10 mm)", voxels), ("tets 30^3 x 6", mesh),
-                       ("hybrid (15^3 x 6 tets inside)", hybrid)):
+    for name, geom, rr in (("voxels 30^3 (10 mm)", voxels, 0.0), ("tets 30^3 x 6", mesh, 0.0),
+                           ("hybrid (15^3 x 6 tets inside)", hybrid, 0.0),
+                           ("voxels, range rejection 2 MeV", voxels, 2.0),
+                           ("hybrid, range rejection 2 MeV", hybrid, 2.0)):
         for cut in (0.189,):
-            st = TransportSettings(n, 10, 1, physics="dose", electron_cutoff_mev=cut)
+            st = TransportSettings(n, 10, 1, physics="dose", electron_cutoff_mev=cut,
+                                   range_rejection_mev=rr)
             simulate(geom, pl, TransportSettings(200, 2, physics="dose", electron_cutoff_mev=cut),
                      progress=False)
             best, rec = np.inf, {}
@@ -182,6 +191,8 @@ def main() -> None:
     ap.add_argument("--cases", default="water_2MeV_100,water_6MV_100,slab_2MeV_30")
     ap.add_argument("--pegs", default="700icru")
     ap.add_argument("--split", default="1")
+    ap.add_argument("--rr", default="", help="range rejection energies [MeV] to add, e.g. 2")
+    ap.add_argument("--threads", default="1,2")
     ap.add_argument("--no-ompmc", action="store_true")
     ap.add_argument("--no-worlds", action="store_true")
     ap.add_argument("--no-efficiency", action="store_true")

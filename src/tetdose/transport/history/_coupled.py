@@ -34,14 +34,27 @@ annihilation) has weight 1, so electron tracks never carry a weight. The roulett
 balance is the ledger column L_ROULETTE: + w·E for a killed particle, − (1 − w)·E for a survivor
 (E = T, + 2mc² for a positron), so deposited + escaped + cut off + lost + roulette = source
 exactly in every history, and the roulette column averages to zero.
+
+**Range rejection** (EGSnrc's ESAVE, restricted to what cannot change a tally): an electron of
+kinetic energy T ≤ ``rr_mev`` starting a track in a voxel whose walls all lie farther than its
+restricted CSDA range, R(T)·10/ρ [mm] < d_wall (ρ the voxel's density, constant), deposits T
+there at once. Every charged descendant stays inside: a step of mass thickness p leaves
+R(T') = R(T) − p, and a hard event shares T' between two particles of ranges below R(T'), so no
+electron path from the start is longer than R(T) and the straight distance is shorter still. The
+one approximation is the hard bremsstrahlung photons (k > k_c) the track would have sent away:
+their energy, the radiative yield Y(T) · T (≤ 0.4 % of T in water below 1 MeV, ESTAR), stays in
+the voxel instead. Positrons (their annihilation photons), tets (their density varies inside)
+and voxels listing mesh triangles (a tet may be nearer) are never rejected.
 """
 
 import math
 
+from tetdose._constants import MM_PER_CM
 from tetdose._jit import kernel
 from tetdose._random import next_uniform
-from tetdose.transport.geometry._world import cell_material
+from tetdose.transport.geometry._world import cell_material, voxel_ijk
 from tetdose.transport.history._electron import (
+    C_E_TRACKS,
     ELECTRON,
     ELECTRON_MASS_MEV,
     L_E_CUTOFF,
@@ -62,6 +75,7 @@ from tetdose.transport.history._photon import (
     LOST,
     flight,
 )
+from tetdose.transport.physics._electron import range_of
 from tetdose.transport.physics._photon import (
     branching_fractions,
     isotropic_direction,
@@ -192,10 +206,30 @@ def photon_track(wg, xs, e, cell, x, y, z, u, v, w, state, p_cut, e_cut, wt, tal
 
 
 @kernel
+def wall_column(wg, cell, x, y, z):
+    """Least column density [mm·g/cm³] between (x, y, z) and the walls of voxel ``cell``
+    (distance to the nearest face × its density); 0 for tets and voxels listing mesh triangles."""
+    m_tets = wg.tet.planes.shape[0]
+    if cell < m_tets:
+        return 0.0
+    g = wg.vox
+    vid = cell - m_tets
+    if g.material[vid] < 0:
+        return 0.0
+    i, j, k = voxel_ijk(g, vid)
+    ax = x - (g.lo[0] + i * g.cell[0])
+    ay = y - (g.lo[1] + j * g.cell[1])
+    az = z - (g.lo[2] + k * g.cell[2])
+    d = min(ax, g.cell[0] - ax, ay, g.cell[1] - ay, az, g.cell[2] - az)
+    return max(d, 0.0) * g.density[vid]
+
+
+@kernel
 def coupled_history(wg, xs, et, sig_hat, sp, e, cell, x, y, z, u, v, w, state, p_cut, f_loss,
-                    wt, tally, ledger, counts, stack, bcell, bcol):
+                    wt, rr_mev, tally, ledger, counts, stack, bcell, bcol):
     """Follow one source particle (species ``sp``, energy [MeV], already in global ``cell``,
-    statistical weight ``wt``: 1, or 1/n_split for a split photon) and every secondary to the end.
+    statistical weight ``wt``: 1, or 1/n_split for a split photon) and every secondary to the end;
+    electrons of at most ``rr_mev`` [MeV] are range-rejected (module docstring; 0: never).
     Returns the RNG state."""
     n_stack = 0
     while True:
@@ -203,6 +237,12 @@ def coupled_history(wg, xs, et, sig_hat, sp, e, cell, x, y, z, u, v, w, state, p
             state, n_stack = photon_track(wg, xs, e, cell, x, y, z, u, v, w, state, p_cut,
                                           et.cutoff_mev, wt, tally, ledger, counts, stack,
                                           n_stack)
+        elif (sp == ELECTRON and e <= rr_mev
+              and range_of(et, cell_material(wg, cell), sp, e) * MM_PER_CM
+              < wall_column(wg, cell, x, y, z)):
+            tally[cell] += e  # range rejection: the track cannot leave this voxel
+            ledger[L_E_CUTOFF] += e
+            counts[C_E_TRACKS] += 1
         else:
             state, n_stack = electron_track(wg, et, sig_hat, sp, e, cell, x, y, z, u, v, w, state,
                                             f_loss, tally, ledger, counts, stack, n_stack, bcell,

@@ -266,7 +266,8 @@ def physics_record(settings: TransportSettings) -> dict[str, object]:
     if settings.physics == "dose":
         rec.update(electron_cutoff_mev=settings.electron_cutoff_mev,
                    max_energy_loss_fraction=settings.max_energy_loss_fraction,
-                   photon_splitting=settings.photon_splitting)
+                   photon_splitting=settings.photon_splitting,
+                   range_rejection_mev=settings.range_rejection_mev)
     return rec
 
 
