@@ -136,16 +136,18 @@ def test_split_dose_same_bits_with_one_or_two_threads(tmp_path):
 def test_preflight_times_coupled_histories_so_the_estimate_counts_the_electrons(monkeypatch):
     """The pilot runs the run's own physics: a dose-mode estimate is several times the kerma
     one (electron steps cost more than the photon flights), and the long-run warning quotes it."""
+    monkeypatch.setattr(job_module, "PILOT_HISTORIES", 20_000)  # kerma's pilot above the noise
     rho, lab = slab_phantom()
     world = World(density=rho, labels=lab)
     est = {}
     for physics, cut in (("kerma", 0.2), ("dose", 0.01)):
-        st = TransportSettings(1_000_000, 10, 1, physics=physics, electron_cutoff_mev=cut)
+        st = TransportSettings(1_000_000, 10, 1, physics=physics, electron_cutoff_mev=cut,
+                               range_rejection_mev=0.0)
         job, _ = build_job(world, SLAB_PLAN, st)
         xs = cross_sections(job, st)
         preflight(job, xs, st, 1)  # warm (compile, tables)
         est[physics] = min(preflight(job, xs, st, 1) for _ in range(2))
-    assert est["dose"] > 3.0 * est["kerma"], est
+    assert est["dose"] > 4.0 * est["kerma"], est  # ≈ 20× on a quiet machine
     monkeypatch.setattr(job_module, "LONG_RUN_S", 0.5 * est["dose"])
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")

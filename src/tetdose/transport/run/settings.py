@@ -33,7 +33,7 @@ MAX_ENERGY_LOSS_FRACTION = 0.25
 #: Default photon splitting of dose mode (copies of each source photon).
 PHOTON_SPLITTING = 1
 #: Default largest electron energy of range rejection [MeV] (0: off).
-RANGE_REJECTION_MEV = 0.0
+RANGE_REJECTION_MEV = 1.0
 #: Largest tally (n_batches × n_cells × 8 bytes) accepted by default.
 MAX_TALLY_BYTES = 2 * 1024**3
 
