@@ -159,6 +159,7 @@ def worlds(args: argparse.Namespace) -> None:
     for name, geom, rr in (("voxels 30^3 (10 mm)", voxels, 0.0), ("tets 30^3 x 6", mesh, 0.0),
                            ("hybrid (15^3 x 6 tets inside)", hybrid, 0.0),
                            ("voxels, range rejection 2 MeV", voxels, 2.0),
+                           ("tets, range rejection 2 MeV", mesh, 2.0),
                            ("hybrid, range rejection 2 MeV", hybrid, 2.0)):
         for cut in (0.189,):
             st = TransportSettings(n, 10, 1, physics="dose", electron_cutoff_mev=cut,

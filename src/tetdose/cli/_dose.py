@@ -113,7 +113,7 @@ def add_run_args(parser: argparse.ArgumentParser, per: str = "") -> None:
     parser.add_argument("--range-rejection-mev", type=float_in(0.0, 20.0),
                         default=RANGE_REJECTION_MEV, metavar="MEV",
                         help="dose mode: an electron up to this energy that cannot leave its "
-                        "voxel deposits there at once (0 = off; default "
+                        "voxel or tet deposits there at once (0 = off; default "
                         f"{RANGE_REJECTION_MEV:g})")
 
     parser.add_argument("--target-uncertainty", type=relative_uncertainty, metavar="PCT",

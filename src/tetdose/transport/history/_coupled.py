@@ -36,15 +36,18 @@ balance is the ledger column L_ROULETTE: + w·E for a killed particle, − (1 �
 exactly in every history, and the roulette column averages to zero.
 
 **Range rejection** (EGSnrc's ESAVE, restricted to what cannot change a tally): an electron of
-kinetic energy T ≤ ``rr_mev`` starting a track in a voxel whose walls all lie farther than its
-restricted CSDA range, R(T)·10/ρ [mm] < d_wall (ρ the voxel's density, constant), deposits T
-there at once. Every charged descendant stays inside: a step of mass thickness p leaves
+kinetic energy T ≤ ``rr_mev`` starting a track in a cell it cannot leave deposits T there at
+once. In a voxel (density ρ constant) it cannot leave when R(T)·10 < d·ρ, d [mm] the distance to
+the nearest wall. In a tet it cannot when R(T)·10 < d·(ρ(p) − |∇ρ|·d), d the distance to the
+nearest face plane: the ball of radius d about p lies inside the (convex) tet, the first d of
+any path to a face lies in that ball, and the linear density there is at least ρ(p) − |∇ρ|·d.
+Every charged descendant stays inside: a step of mass thickness p leaves
 R(T') = R(T) − p, and a hard event shares T' between two particles of ranges below R(T'), so no
 electron path from the start is longer than R(T) and the straight distance is shorter still. The
 one approximation is the hard bremsstrahlung photons (k > k_c) the track would have sent away:
 their energy, the radiative yield Y(T) · T (≤ 0.4 % of T in water below 1 MeV, ESTAR), stays in
-the voxel instead. Positrons (their annihilation photons), tets (their density varies inside)
-and voxels listing mesh triangles (a tet may be nearer) are never rejected.
+the cell instead. Positrons (their annihilation photons) and voxels listing mesh triangles (a tet
+may be nearer) are never rejected.
 """
 
 import math
@@ -52,6 +55,7 @@ import math
 from tetdose._constants import MM_PER_CM
 from tetdose._jit import kernel
 from tetdose._random import next_uniform
+from tetdose.transport.geometry._tet import density_at
 from tetdose.transport.geometry._world import cell_material, voxel_ijk
 from tetdose.transport.history._electron import (
     C_E_TRACKS,
@@ -207,11 +211,20 @@ def photon_track(wg, xs, e, cell, x, y, z, u, v, w, state, p_cut, e_cut, wt, tal
 
 @kernel
 def wall_column(wg, cell, x, y, z):
-    """Least column density [mm·g/cm³] between (x, y, z) and the walls of voxel ``cell``
-    (distance to the nearest face × its density); 0 for tets and voxels listing mesh triangles."""
+    """A lower bound of the column density [mm·g/cm³] of any path from (x, y, z) to the walls of
+    ``cell`` (module docstring); 0 for voxels listing mesh triangles."""
     m_tets = wg.tet.planes.shape[0]
     if cell < m_tets:
-        return 0.0
+        g = wg.tet
+        d = math.inf
+        for f in range(4):
+            d = min(d, g.planes[cell, f, 3] - (g.planes[cell, f, 0] * x + g.planes[cell, f, 1] * y
+                                               + g.planes[cell, f, 2] * z))
+        if d <= 0.0:
+            return 0.0
+        gx, gy, gz = g.density[cell, 0], g.density[cell, 1], g.density[cell, 2]
+        rho_min = density_at(g, cell, x, y, z) - math.sqrt(gx * gx + gy * gy + gz * gz) * d
+        return max(d * rho_min, 0.0)
     g = wg.vox
     vid = cell - m_tets
     if g.material[vid] < 0:

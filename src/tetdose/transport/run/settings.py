@@ -10,11 +10,10 @@ production threshold Δ); ``max_energy_loss_fraction`` is the largest fraction o
 electron may lose in one step (EGSnrc's ESTEPE). ``photon_splitting`` n follows every source
 photon as n copies of weight 1/n and plays Russian roulette with the electrons they set in motion
 (unbiased; :mod:`tetdose.transport.history._coupled`; dose mode only). ``range_rejection_mev``
-E: an electron of at most E starting in a voxel it cannot leave deposits its energy there at once
-(EGSnrc's ESAVE; only the hard bremsstrahlung it would have radiated stays too; 0: off). The
-estimator is
-``"track_length"`` (kerma default) or ``"analog"``; dose mode scores the analog energy deposition
-only.
+E: an electron of at most E starting in a voxel or tet it cannot leave deposits its energy there
+at once (EGSnrc's ESAVE; only the hard bremsstrahlung it would have radiated stays too; 0: off).
+The estimator is ``"track_length"`` (kerma default) or ``"analog"``; dose mode scores the analog
+energy deposition only.
 """
 
 from __future__ import annotations
@@ -61,7 +60,7 @@ class TransportSettings:
     max_energy_loss_fraction: float = MAX_ENERGY_LOSS_FRACTION
     #: Copies of each source photon (weight 1/n each, electron Russian roulette); 1: none.
     photon_splitting: int = PHOTON_SPLITTING
-    #: Range rejection below this electron energy [MeV] in voxels it cannot leave; 0: off.
+    #: Range rejection below this electron energy [MeV] in cells it cannot leave; 0: off.
     range_rejection_mev: float = RANGE_REJECTION_MEV
 
     def __post_init__(self) -> None:
