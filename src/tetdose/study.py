@@ -17,7 +17,7 @@ import os
 import shutil
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -25,6 +25,7 @@ import numpy as np
 
 from tetdose._atomic import atomic_write_dir
 from tetdose.compare.comparison import half_inside
+from tetdose.compare.dose_kerma import beam_axis_profiles, dose_kerma_figure, structure_ratios
 from tetdose.compare.dvh import image_dvh, mesh_dvh
 from tetdose.compare.gamma import gamma_index
 from tetdose.compare.profiles import image_profile, mesh_profile
@@ -54,10 +55,11 @@ from tetdose.motion import BreathingModel, update_series
 from tetdose.motion.ct4d import phase_densities, to_hu, write_4dct
 from tetdose.phantoms import Phantom, make_phantom, write_phantom
 from tetdose.phantoms import organ_mesh as phantoms_organ_mesh
-from tetdose.plan.beams import ControlPoint, LinacBeam
-from tetdose.plan.prescription import Prescription
+from tetdose.plan.beams import ControlPoint, LinacBeam, beam_axes
+from tetdose.plan.prescription import PER_PHOTON_UNIT, Prescription
 from tetdose.plan.spectra import build_up_depth_mm
-from tetdose.transport import Plan, TransportSettings
+from tetdose.transport import Plan, TransportSettings, World, simulate
+from tetdose.transport.run.job import physics_record
 
 #: Structures reported in the DVH and mapping tables (phantom label names).
 STRUCTURES = ("tumour", "lung", "liver", "vessels", "bone")
@@ -76,7 +78,9 @@ class StudyConfig:
     seed: int = 1
     n_phases: int = 10
     amplitude_mm: float = 12.0
-    histories: int = 200_000  # per phase and geometry
+    histories: int = 100_000  # per phase and geometry
+    physics: str = "dose"  # absorbed dose (electrons transported), or "kerma"
+    electron_cutoff_mev: float = 0.2
     batches: int = 10
     beam_angles_deg: tuple[float, ...] = (0.0, 120.0, 240.0)
     field_mm: float = 60.0
@@ -111,7 +115,7 @@ class _Run:
 
     def all(self) -> None:
         for stage in (self.phantom, self.mapping, self.motion, self.ct4d, self.dose,
-                      self.compare):
+                      self.kerma, self.compare):
             start = time.perf_counter()
             line = stage()
             seconds = time.perf_counter() - start
@@ -196,18 +200,48 @@ class _Run:
         self.target_mm = tumour.mean(axis=0)
         plan = self.plan = _plan(self.target_mm, self.c, self.label_of["tumour"])
         settings = TransportSettings(n_histories=self.c.histories, n_batches=self.c.batches,
-                                     seed=self.c.seed, physics="kerma")  # dose: issue 20
+                                     seed=self.c.seed, physics=self.c.physics,
+                                     electron_cutoff_mev=self.c.electron_cutoff_mev)
         self.d4 = run_dose4d(self.series, plan, settings, ct_hu=self.ph.ct,
                              phase_density=self.density, progress=self.progress)
         write_dose4d(self.d4, self.out / "dose4d")
-        led = [r.ledger for r in self.d4.results + self.d4.voxel.results]
-        closure = max(abs(x["source_mev"] - x["deposited_mev"] - x["escaped_mev"]
-                          - x["cutoff_mev"] - x["lost_mev"]) / x["source_mev"] for x in led)
+        closure = max(r.ledger_closure for r in self.d4.results + self.d4.voxel.results)
         lost = sum(r.lost_photons for r in self.d4.results)
+        self.summary["physics"] = physics_record(settings)
         self.summary["dose"] = {**self.d4.summary(), "ledger_closure_rel": closure,
                                 "lost_photons": lost}
-        return f"{self.c.histories} histories × {self.c.n_phases} phases × 2 worlds (organ " \
-               f"mesh in the CT, CT alone); ledger closes to {closure:.1e}, {lost} lost photons"
+        return f"{self.c.physics}: {self.c.histories} histories × {self.c.n_phases} phases × 2 " \
+               f"worlds (organ mesh in the CT, CT alone); ledger closes to {closure:.1e}, " \
+               f"{lost} lost photons"
+
+    def kerma(self) -> str:
+        """Where kerma ≠ dose, measured on phase 0 (:mod:`tetdose.compare.dose_kerma`): the same
+        world, beams and streams without electrons; per structure D/K, per beam the axes."""
+        if self.c.physics != "dose":
+            return "skipped (the study's physics is kerma)"
+        world = World(mesh=self.series.mesh(0), density=self.density[0])
+        dose = self.d4.results[0]
+        settings = TransportSettings(self.c.histories, self.c.batches, self.c.seed,
+                                     physics="kerma")
+        kerma = simulate(world, self.plan, settings, progress=False)
+        kerma = replace(kerma, particles=dose.particles)  # the prescription's scale
+        (d, sd), (k, sk) = dose.to_images(), kerma.to_images()
+        masks = {name: self.ph.labels.array == label for name, label in self.label_of.items()
+                 if name in STRUCTURES}
+        ratios = structure_ratios(d, sd, k, sk, dose.combined().mass_g, masks)
+        beams = [(b.name, self.target_mm, -beam_axes(g, 0.0, 0.0)[2])
+                 for b, g in zip(self.plan.treatment_beams, self.c.beam_angles_deg, strict=True)]
+        profiles = beam_axis_profiles(world, self.plan, replace(
+            settings, n_histories=max(self.c.histories // 2, self.c.batches)), beams)
+        self.figures.append(dose_kerma_figure(profiles, unit=PER_PHOTON_UNIT))
+        self.summary["dose_vs_kerma"] = {
+            "structures": ratios,
+            "beams": {p.name: {f"dose_over_kerma_at_{z:g}_mm": p.ratio_at(z) for z in (2, 5, 10, 20)}
+                      for p in profiles}}
+        worst = min(ratios.items(), key=lambda kv: kv[1]["dose_over_kerma"])
+        return (f"phase 0 kerma for comparison; lowest mean D/K {worst[1]['dose_over_kerma']:.3f} "
+                f"({worst[0]}); D/K at 5 mm under the skin "
+                f"{', '.join(f'{p.ratio_at(5.0):.2f}' for p in profiles)}")
 
     def compare(self) -> str:
         grid, d4 = self.ph.ct.grid, self.d4
@@ -224,6 +258,8 @@ class _Run:
         emt, ddm = d4.voxel.energy_mass_transfer, d4.voxel.direct_mapping
         # Gamma only where the mesh is: outside the body mesh only the voxel engine scores dose.
         inside = half_inside(ov0) & half_inside(ov_ref)
+        # Global gamma normalised to the prescription (not to a noisy maximum voxel).
+        rx = self.plan.prescription.dose_gy if self.plan.prescription else None
         k = int(grid.voxel_index(self.target_mm[None])[0, 2])
         pairs = {"static phase, matched resolution: voxel vs mesh": (static_vox_on_mesh,
                                                                      static_mesh),
@@ -232,7 +268,7 @@ class _Run:
                  "accumulated: direct mapping vs mesh": (ddm, acc_mesh)}
         gammas = {}
         for name, (a, b) in pairs.items():
-            g = gamma_index(a, b, dose_percent=3.0, dta_mm=3.0, mask=inside)
+            g = gamma_index(a, b, dose_percent=3.0, dta_mm=3.0, mask=inside, normalization_gy=rx)
             gammas[f"{name} 3%/3mm global"] = g.summary()
             self.figures.append(gamma_figure(g, k=k))
         named = {n: self.label_of[n] for n in STRUCTURES
@@ -241,7 +277,7 @@ class _Run:
             d4.body.combined, emt, labels=("organ mesh + body accumulated", "voxel EMT"), k=k,
             unit=_UNIT, ct_hu=self.ph.ct, mesh=ref_mesh, structures=named,
             prescription_gy=self.plan.prescription.dose_gy if self.plan.prescription else None))
-        g = gamma_index(emt, d4.body.combined, dose_percent=3.0, dta_mm=3.0)
+        g = gamma_index(emt, d4.body.combined, dose_percent=3.0, dta_mm=3.0, normalization_gy=rx)
         gammas["accumulated, whole body: energy/mass transfer vs organ mesh + body 3%/3mm "
                "global"] = g.summary()
         self.summary["gamma"] = gammas
@@ -255,10 +291,7 @@ class _Run:
                 "resolution); RT Dose written")
 
     def _dvh(self, ref_mesh, emt: Image, ddm: Image) -> dict[str, Any]:  # noqa: ANN001
-        curves, table, in_build_up = {}, {}, {}
-        ct = self.ph.ct
-        build_up = build_up_mask(ct.with_array(HUCalibration.schneider2000().density(ct.array)),
-                                 build_up_depth_mm("6MV"))
+        curves, table = {}, {}
         for name in STRUCTURES:
             label = self.label_of.get(name)
             mask = self.ph.labels.array == label
@@ -268,10 +301,19 @@ class _Run:
                   image_dvh(emt, mask, name="voxel EMT"), image_dvh(ddm, mask, name="voxel DDM")]
             curves[name] = hs
             table[name] = {h.name: h.metrics() for h in hs}
-            in_build_up[name] = build_up_fraction(build_up, mask)
-        self.summary["build_up_fraction"] = in_build_up
-        self.figures.append(dvh_figure(curves, unit=_UNIT, build_up_mm=build_up_depth_mm("6MV"),
-                                       build_up_fraction=in_build_up))
+        if self.c.physics == "dose":  # measured on phase 0 (stage kerma): dose < 95 % of kerma
+            below = {n: r["mass_fraction_dose_below_kerma"]
+                     for n, r in self.summary["dose_vs_kerma"]["structures"].items()}
+            self.figures.append(dvh_figure(curves, unit=_UNIT, below_kerma_fraction=below))
+        else:
+            ct = self.ph.ct
+            build_up = build_up_mask(ct.with_array(HUCalibration.schneider2000().density(
+                ct.array)), build_up_depth_mm("6MV"))
+            in_build_up = {n: build_up_fraction(build_up, self.ph.labels.array ==
+                                                self.label_of[n]) for n in curves}
+            self.summary["build_up_fraction"] = in_build_up
+            self.figures.append(dvh_figure(curves, unit=_UNIT, build_up_mm=build_up_depth_mm(
+                "6MV"), build_up_fraction=in_build_up))
         return table
 
     def _profiles(self, ref_mesh, emt: Image, ddm: Image) -> None:  # noqa: ANN001

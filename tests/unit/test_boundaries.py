@@ -222,8 +222,12 @@ def test_prescription_messages_say_what_happened():
     with pytest.raises(PlanError, match=r"too few histories: 33 % of the structure"):
         scale_for(rx, np.r_[0, 0, 1, 1, 1, 1, np.ones(4)], np.ones(10), mask)
     dose = np.r_[np.ones(6), 20.0, 1, 1, 1]  # scaled: the hot cell gets 40 Gy = 20× 2 Gy
-    with pytest.warns(UserWarning, match=r"maximum dose at 40 Gy per fraction, 20×"):
+    with pytest.warns(UserWarning, match=r"near-maximum dose \(D0.1\) at 40 Gy per fraction, 20×"):
         assert scale_for(rx, dose, mass, mask) == pytest.approx(2.0)
+    tiny = np.r_[np.ones(9), 1e-5]  # a noise spike in a cell of 1e-6 of the mass is no maximum
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        scale_for(rx, np.r_[np.ones(9), 20.0], tiny, mask)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         scale_for(rx, np.r_[np.ones(6), 4.0, 1, 1, 1], mass, mask)  # 4× is no warning

@@ -5,7 +5,12 @@ at the reference point (within the statistics of the two Monte Carlo runs)."""
 import numpy as np
 import pytest
 
-from tetdose.dose.absolute import absolute_result, calibration_scale, reference_dose_per_photon
+from tetdose.dose.absolute import (
+    absolute_result,
+    calibration_scale,
+    reference_dose_per_photon,
+    run_physics,
+)
 from tetdose.errors import PlanError
 from tetdose.plan.beams import aperture_rectangles, fluence_weight
 from tetdose.plan.mu_calibration import MUCalibration, reference_phantom
@@ -61,7 +66,7 @@ def test_refusals():
     with pytest.raises(PlanError, match="one beam quality"):
         calibration_scale(mixed)
     with pytest.raises(PlanError, match="build-up"):
-        reference_dose_per_photon("6MV", MUCalibration(0.01, depth_mm=5.0))
+        reference_dose_per_photon("6MV", MUCalibration(0.01, depth_mm=5.0), physics="kerma")
 
 
 def test_reference_conditions_give_gy_per_mu_times_mu():
@@ -131,8 +136,25 @@ def test_dose4d_phases_and_accumulation_get_the_one_calibration_factor():
     acc = AccumulatedDose(r.dose_gy.copy(), r.dose_std_gy.copy(), r.mass_g, np.ones(1), 0.0)
     d4 = absolute_dose4d(Dose4D(None, [r, r], acc, None), plan)
     s = d4.results[0].record()["calibration_scale"]
-    assert s == pytest.approx(calibration_scale(plan)[0])
+    assert s == pytest.approx(calibration_scale(plan, physics=run_physics(r))[0])
+    assert d4.results[0].record()["mu_calibration"]["reference_physics"] == "kerma"
     np.testing.assert_allclose(d4.accumulated.dose_gy, r.dose_gy * s)
     for p in d4.results:
         np.testing.assert_allclose(p.dose_gy, r.dose_gy * s)
         assert p.record()["units"]["dose"] == "Gy per fraction"
+
+
+def test_the_reference_dose_is_computed_with_the_runs_physics():
+    """A dose-mode run is calibrated against a reference computed with electrons (absorbed
+    dose), a kerma run against kerma: the factor relates like to like, and the record says so.
+    Beyond d_max both references agree within their σ (charged-particle equilibrium)."""
+    rho, lab, _ = reference_phantom(100.0)
+    plan = Plan.from_dict({"beam": [_linac(100.0)], "materials": {1: "water"},
+                           "calibration": _cal(reference_histories=40_000)})
+    r = simulate(rho, plan, TransportSettings(2000, 2, 3), labels=lab, progress=False)
+    dose_rec = absolute_result(r, plan, rho, lab).record()["mu_calibration"]
+    assert dose_rec["reference_physics"] == "dose"
+    kerma = reference_dose_per_photon("Co60", MUCalibration(**_cal(reference_histories=40_000)),
+                                      physics="kerma")
+    d, s = dose_rec["reference_gy_per_photon"], dose_rec["reference_gy_per_photon_std"]
+    assert abs(d - kerma[0]) < 4 * np.hypot(s, kerma[1])

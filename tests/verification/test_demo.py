@@ -25,13 +25,37 @@ def test_report_numbers_are_sane(demo):
     assert all(abs(p["mass_change_rel"]) < 1e-9 for p in s["motion"])  # over the whole cycle
     assert s["dose"]["ledger_closure_rel"] < 1e-9 and s["dose"]["lost_photons"] == 0
     matched = s["gamma"]["static phase, matched resolution: voxel vs mesh 3%/3mm global"]
-    assert matched["pass_rate_percent"] > 85.0
+    # --quick: 2·10⁴ histories with electrons leave a few % of noise per voxel (σ in the tumour
+    # ≈ 5 %); the full demo's figure is in the README.
+    assert matched["pass_rate_percent"] > 50.0
     tumour = s["dvh"]["tumour"]
     assert tumour["mesh"]["Dmean"] > 0 and tumour["voxel EMT"]["Dmean"] > 0
     # The three accumulations agree on the tumour's mean dose within a few per cent.
     assert tumour["voxel EMT"]["Dmean"] / tumour["mesh"]["Dmean"] == pytest.approx(1.0, abs=0.15)
     html = (out / "report.html").read_text()
     assert html.count("<img") >= 8 and "data:image/png;base64," in html
+
+
+def test_demo_is_absorbed_dose_and_every_figure_is_drawn(demo):
+    """The demo transports electrons and says so; the build-up under the skin is measured (dose
+    well below kerma at 2 mm, as 6 MV physics demands); every figure of the report exists as a
+    non-empty PNG, with the dose slices over the CT and the dose-vs-kerma panel among them."""
+    out, s = demo
+    assert s["physics"]["physics"] == "dose" and s["dose"]["physics"] == "dose"
+    assert s["physics"]["electron_cutoff_mev"] == s["config"]["electron_cutoff_mev"]
+    beams = s["dose_vs_kerma"]["beams"]
+    assert len(beams) == len(s["config"]["beam_angles_deg"])
+    assert all(b["dose_over_kerma_at_2_mm"] < 0.85 for b in beams.values())
+    assert all(0 < r["dose_over_kerma"] < 1.2 for r in s["dose_vs_kerma"]["structures"].values())
+    figures = json.loads((out / "report" / "figures.json").read_text())
+    names = set(figures)
+    assert "dose_vs_kerma_beams" in names and "dvh" in names
+    assert any(n.startswith("dose_slice_k") for n in names)
+    for name in names:
+        png = (out / "report" / f"{name}.png").read_bytes()
+        assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 5_000, name
+    slice_data = next(v for k, v in figures.items() if k.startswith("dose_slice_k"))
+    assert slice_data["contour_segments"]["tumour"] > 0 and slice_data["isodose_gy"][0] == 1.9
 
 
 def test_outputs_exist_and_dicom_is_valid(demo):

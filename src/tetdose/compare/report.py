@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from tetdose._atomic import atomic_write_dir
+from tetdose._typing import FloatArray
 from tetdose.compare.dvh import DVH
 from tetdose.compare.gamma import GammaResult
 from tetdose.compare.profiles import Profile
@@ -58,6 +59,17 @@ def pyplot() -> Any:
     return plt
 
 
+def wash_top(prescription_gy: float | None, *slices: FloatArray) -> float:
+    """Top of the dose colour scale [Gy]: 1.25 × the prescription, else the 99.5th percentile
+    of the slices' scored doses — a Monte Carlo dose's single hottest voxel is noise, not the
+    scale a reader needs."""
+    if prescription_gy:
+        return 1.25 * float(prescription_gy)
+    scored = np.concatenate([np.asarray(x, float).ravel() for x in slices])
+    scored = scored[scored > 0]
+    return float(np.percentile(scored, 99.5)) if scored.size else 1e-30
+
+
 def dose_slices_figure(a: Image, b: Image, *, labels: tuple[str, str] = ("mesh", "voxel"),
                        k: int | None = None, unit: str = PER_PHOTON_UNIT,
                        ct_hu: Image | None = None, mesh: TetMesh | None = None,
@@ -86,7 +98,7 @@ def dose_slices_figure(a: Image, b: Image, *, labels: tuple[str, str] = ("mesh",
         contours = {name: frame.contours(mesh, label) for name, label in named.items()}
     plt = pyplot()
     fig, axes = plt.subplots(1, 3, figsize=(15, 5), layout="constrained")
-    top = max(float(sa.max()), float(sb.max()), 1e-30)
+    top = wash_top(prescription_gy, sa, sb)
     for ax, img, title in ((axes[0], sa, labels[0]), (axes[1], sb, labels[1])):
         im = draw_dose_wash(ax, frame, img, top_gy=top, ct_slice=ct, isodose_gy=isodose,
                             contours=contours)
@@ -130,24 +142,32 @@ def gamma_figure(result: GammaResult, *, k: int) -> Figure:
 
 def dvh_figure(curves: Mapping[str, Sequence[DVH]], *, unit: str = PER_PHOTON_UNIT,
                build_up_mm: float | None = None,
-               build_up_fraction: Mapping[str, float] | None = None) -> Figure:
+               build_up_fraction: Mapping[str, float] | None = None,
+               below_kerma_fraction: Mapping[str, float] | None = None) -> Figure:
     """Cumulative DVHs, one colour per structure, one line style per dose source.
 
     ``unit``: "Gy" for prescribed doses; ``build_up_mm``: the beams' build-up depth d_max, noted
     in the caption (cells shallower than it report kerma, which exceeds the dose there), and
-    ``build_up_fraction`` per structure (:mod:`tetdose.dose.buildup`) in the legend."""
+    ``build_up_fraction`` per structure (:mod:`tetdose.dose.buildup`) in the legend — for kerma
+    runs; a dose run gives instead ``below_kerma_fraction``, the measured mass fraction where the
+    dose lies below 95 % of the kerma (:mod:`tetdose.compare.dose_kerma`)."""
     build_up_fraction = build_up_fraction or {}
+    below_kerma_fraction = below_kerma_fraction or {}
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(10, 4.5), layout="constrained")
     top = max(float(h.dose_gy[0]) for hs in curves.values() for h in hs)
     levels = np.linspace(0.0, 1.05 * top, 200)
     data: dict[str, Any] = {"dose_gy": levels, "unit": unit,
-                            "build_up_fraction": dict(build_up_fraction)}
+                            "build_up_fraction": dict(build_up_fraction),
+                            "below_kerma_fraction": dict(below_kerma_fraction)}
     for colour, (structure, hs) in enumerate(curves.items()):
         for style, h in zip(("-", "--", ":"), hs, strict=False):
             v = h.curve(levels)
             frac = build_up_fraction.get(structure, 0.0)
             note = f", {100 * frac:.0f} % in build-up" if frac > 0 else ""
+            below = below_kerma_fraction.get(structure, 0.0)
+            if below > 0:
+                note += f", {100 * below:.0f} % below 0.95 kerma (measured)"
             m = h.metrics()
             ax.plot(levels, v, style, color=f"C{colour % 10}",
                     label=f"{structure} ({h.name}): D95 {m['D95']:.3g}, D2 {m['D2']:.3g}, "

@@ -8,6 +8,7 @@ accumulated, mesh and voxel — and is written into the run records; without eit
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import replace
 from functools import lru_cache
 from typing import TYPE_CHECKING, Any
@@ -29,6 +30,7 @@ from tetdose.plan.prescription import (
 )
 from tetdose.plan.spectra import build_up_depth_mm, is_named
 from tetdose.transport import Plan, TransportSettings, simulate
+from tetdose.transport.run.settings import ELECTRON_CUTOFF_MEV
 
 if TYPE_CHECKING:
     from tetdose.dose.dose4d import Dose4D
@@ -48,35 +50,54 @@ def plan_weight_and_quality(plan: Any) -> tuple[float, str]:  # noqa: ANN401
     return float(sum(s.weight for s in plan.sources)), qualities.pop()
 
 
-def reference_dose_per_photon(spectrum: str, cal: MUCalibration, seed: int = 1
+def reference_dose_per_photon(spectrum: str, cal: MUCalibration, seed: int = 1,
+                              physics: str = "dose", electron_cutoff_mev: float | None = None
                               ) -> tuple[float, float]:
-    """(D_ref, σ) [Gy per source photon] in the reference conditions of ``cal`` (module doc)."""
-    if is_named(spectrum) and cal.depth_mm < build_up_depth_mm(spectrum):
+    """(D_ref, σ) [Gy per source photon] in the reference conditions of ``cal`` (module doc),
+    computed with the run's ``physics``: absorbed dose (electrons transported, cut-off
+    ``electron_cutoff_mev``, default the settings' default) or, for a kerma run, kerma — so
+    the calibration factor relates like to like. Kerma is refused in the build-up region."""
+    if physics == "kerma" and is_named(spectrum) and cal.depth_mm < build_up_depth_mm(spectrum):
         raise PlanError(f"[calibration] depth_mm = {cal.depth_mm:g} lies in the build-up region "
-                        f"of {spectrum} (d_max {build_up_depth_mm(spectrum):g} mm), where "
-                        "tetdose reports kerma, not dose; state gy_per_mu at 100 mm depth")
-    return _reference(spectrum, cal.depth_mm, cal.ssd_mm, int(cal.reference_histories), seed)
+                        f"of {spectrum} (d_max {build_up_depth_mm(spectrum):g} mm), where a "
+                        "kerma run reports kerma, not dose; state gy_per_mu at 100 mm depth, or "
+                        "run with --physics dose")
+    cutoff = ELECTRON_CUTOFF_MEV if electron_cutoff_mev is None else float(electron_cutoff_mev)
+    return _reference(spectrum, cal.depth_mm, cal.ssd_mm, int(cal.reference_histories), seed,
+                      physics, cutoff)
 
 
 @lru_cache(maxsize=8)
-def _reference(spectrum: str, depth_mm: float, ssd_mm: float, n: int, seed: int
-               ) -> tuple[float, float]:
+def _reference(spectrum: str, depth_mm: float, ssd_mm: float, n: int, seed: int,
+               physics: str, electron_cutoff_mev: float) -> tuple[float, float]:
     rho, lab, index = reference_phantom(depth_mm)
     iso_y = REFERENCE_SAD_MM - ssd_mm  # surface at y = 0, beam along +y (HFS, gantry 0)
     plan = Plan.from_dict({"beam": [{"type": "linac", "spectrum": spectrum,
                                      "isocenter_mm": [0.0, iso_y, 0.0],
                                      "jaws_mm": list(REFERENCE_JAWS_MM)}],
                            "materials": {1: "water"}})
-    r = simulate(rho, plan, TransportSettings(n, 10, seed, physics="kerma"), labels=lab,
-                 progress=False)  # the reference with electrons: issue 20
+    r = simulate(rho, plan, TransportSettings(n, 10, seed, physics=physics,
+                                              electron_cutoff_mev=electron_cutoff_mev),
+                 labels=lab, progress=False)
     return float(r.dose_gy[index]), float(r.dose_std_gy[index])
 
 
-def calibration_scale(plan: Any, seed: int = 1) -> tuple[float, dict[str, Any]]:  # noqa: ANN401
-    """(source photons per fraction, run-record entries) of ``plan.calibration``."""
+def run_physics(result: DoseResult | None) -> dict[str, Any]:
+    """The physics and electron cut-off a result was computed with (its record), as keyword
+    arguments of :func:`reference_dose_per_photon`; dose with the default cut-off if unknown."""
+    extra = {} if result is None else result.extra
+    return {"physics": extra.get("physics", "dose"),
+            "electron_cutoff_mev": extra.get("electron_cutoff_mev")}
+
+
+def calibration_scale(plan: Any, seed: int = 1,  # noqa: ANN401
+                      physics: Mapping[str, Any] | None = None) -> tuple[float, dict[str, Any]]:
+    """(source photons per fraction, run-record entries) of ``plan.calibration``; the reference
+    dose is computed with ``physics`` (:func:`run_physics` of the run being calibrated)."""
     cal = plan.calibration
     w, quality = plan_weight_and_quality(plan)
-    d_ref, s_ref = reference_dose_per_photon(quality, cal, seed)
+    phys = dict(physics or run_physics(None))
+    d_ref, s_ref = reference_dose_per_photon(quality, cal, seed, **phys)
     if d_ref <= 0.0:
         raise PlanError("the reference computation scored no dose; raise "
                         "[calibration] reference_histories")
@@ -87,6 +108,7 @@ def calibration_scale(plan: Any, seed: int = 1) -> tuple[float, dict[str, Any]]:
                      f"depth {cal.depth_mm:g} mm on the axis",
         "reference_gy_per_photon": d_ref, "reference_gy_per_photon_std": s_ref,
         "reference_histories": int(cal.reference_histories),
+        "reference_physics": phys["physics"],
         "mu_field_weight": w, "mu": float(sum(b.meterset for b in plan.treatment_beams))},
         "calibration_scale": scale, "units": {"dose": MU_UNIT}}
     return scale, rec
@@ -97,7 +119,7 @@ def absolute_result(result: DoseResult, plan: Any, geometry: Any,  # noqa: ANN40
     """One run prescribed by ``plan.prescription`` or calibrated by ``plan.calibration``
     (gy_per_mu, :mod:`tetdose.plan.mu_calibration`); unchanged without either."""
     if getattr(plan, "calibration", None) is not None:
-        scale, rec = calibration_scale(plan)
+        scale, rec = calibration_scale(plan, physics=run_physics(result))
         return _scaled(result, scale, rec)
     rx = plan.prescription
     if rx is None:
@@ -114,7 +136,7 @@ def absolute_dose4d(d4: Dose4D, plan: Any) -> Dose4D:  # noqa: ANN401
     rx = plan.prescription
     acc = d4.accumulated
     if getattr(plan, "calibration", None) is not None:
-        s, rec = calibration_scale(plan)
+        s, rec = calibration_scale(plan, physics=run_physics(d4.results[0] if d4.results else None))
     elif rx is None:
         return d4
     else:

@@ -145,6 +145,15 @@ class DoseResult:
         return {k: float(v) for k, v in zip(keys, tot, strict=True)}
 
     @property
+    def ledger_closure(self) -> float:
+        """|source − Σ every other ledger column| / source: how well the energy ledger closes
+        (photon and, in dose mode, electron columns; round-off only)."""
+        led = self.ledger
+        source = led["source_mev"]
+        rest = sum(v for k, v in led.items() if k != "source_mev")
+        return abs(source - rest) / source if source > 0 else 0.0
+
+    @property
     def lost_photons(self) -> int:
         return int(self.counts_per_batch[:, 0].sum())
 
