@@ -77,7 +77,8 @@ def _deep_ratio(grid, field_mm, n_histories, seed=1):
     plan = _parallel(field_mm)
     settings = TransportSettings(n_histories, 10, seed)
     dose = om.simulate_ompmc(rho, plan, settings, labels=lab, progress=False)
-    kerma = simulate(rho, plan, settings, labels=lab, progress=False)
+    kerma = simulate(rho, plan, TransportSettings(n_histories, 10, seed, physics="kerma"),
+                     labels=lab, progress=False)
     d, k = _central_axis(dose, grid), _central_axis(kerma, grid)
     deep = slice(6, 20)
     return d[:, deep].sum(axis=1) / k[:, deep].sum(axis=1), d[:, 0].mean() / k[:, 0].mean()
@@ -154,7 +155,7 @@ def test_an_arc_reaches_ompmc_as_tetdose_draws_it():
     settings = TransportSettings(20_000, 10, 1)
     dose = om.simulate_ompmc(rho, plan, settings, progress=False,
                              options=om.OmpmcOptions(electron_cutoff_mev=15.0))
-    kerma = simulate(rho, plan, settings, progress=False)
+    kerma = simulate(rho, plan, TransportSettings(20_000, 10, 1, physics="kerma"), progress=False)
     centre = (slice(8, 12),) * 3
     per_batch = [d.reshape(grid.shape)[centre].sum() for d in dose.energy_per_batch_mev]
     ratio = np.array(per_batch) / kerma.energy_per_batch_mev.reshape(-1, *grid.shape)[
@@ -221,7 +222,8 @@ def test_source_particles_are_those_tetdose_transports():
     p = source_particles(plan, settings, 0, 3000)
     lo, hi = grid.bounds_grid_frame()
     hits = om.ray_hits_box(grid.to_grid_frame(p.position_mm), p.direction @ grid.direction, lo, hi)
-    run = simulate(Image(np.ones(grid.shape), grid), plan, settings, progress=False)
+    run = simulate(Image(np.ones(grid.shape), grid), plan,
+                   TransportSettings(3000, 3, 5, stream=2, physics="kerma"), progress=False)
     assert 0 < hits.sum() < 3000
     assert run.counts_per_batch[:, 6].sum() == 3000 - hits.sum()
     assert np.mean(p.energy_mev == 1.5) == pytest.approx(0.75, abs=0.03)
@@ -249,3 +251,21 @@ def test_missing_ompmc_names_the_extra(monkeypatch):
     monkeypatch.setitem(sys.modules, "ompmc", None)  # import ompmc → ImportError
     with pytest.raises(TetdoseError, match=r"tetdose\[ompmc\]"):
         om.ompmc_module()
+
+
+def test_electron_beams_reach_ompmc_as_electrons():
+    """The phase space carries the plan's particle (IAEA 2 for electrons): a 6 MeV electron
+    beam deposits most of its energy in 40 mm of water (a photon beam would pass through)."""
+    e_beam = PhotonSource("parallel", [0, 0, -50], [0, 0, 1], energies_mev=[6.0],
+                          field_mm=[10, 10], particle="electron")
+    assert om.iaea_particle(Plan((e_beam,))) == 2
+    with pytest.raises(PlanError, match="one particle"):
+        om.iaea_particle(Plan((e_beam, PhotonSource("parallel", [0, 0, -50], [0, 0, 1],
+                                                    energies_mev=[6.0], field_mm=[10, 10]))))
+    grid = grid_for([-30, -30, 0], [30, 30, 40], [10.0, 10.0, 2.0])
+    rho, lab = _water(grid)
+    r = om.simulate_ompmc(rho, Plan((e_beam,), materials={1: "water"}),
+                          TransportSettings(200, 2, 1, electron_cutoff_mev=0.2), labels=lab,
+                          progress=False, options=om.OmpmcOptions(electron_cutoff_mev=0.2,
+                                                                  n_split=1))
+    assert r.ledger["deposited_mev"] > 0.8 * 6.0

@@ -77,7 +77,7 @@ from tetdose._version import __version__
 from tetdose.core.calibration import HUCalibration
 from tetdose.core.image import Image, ImageGrid
 from tetdose.core.mesh import TetMesh
-from tetdose.coupling.iaea_phsp import write_phase_space
+from tetdose.coupling.iaea_phsp import ELECTRON, PHOTON, POSITRON, write_phase_space
 from tetdose.coupling.onto_mesh import result_onto_mesh, voxel_share
 from tetdose.errors import DensityError, OptionError, PlanError, TetdoseError
 from tetdose.plan.model import Plan
@@ -395,6 +395,20 @@ class _Engine(NamedTuple):
     workdir: Path
 
 
+#: IAEA particle code of each source particle name.
+_IAEA_CODES = {"photon": PHOTON, "electron": ELECTRON, "positron": POSITRON}
+
+
+def iaea_particle(plan: Plan) -> int:
+    """IAEA type code of the plan's source particles (photons, electrons or positrons: one kind;
+    the phase space is written with it, so ompmc transports electron beams as electrons)."""
+    kinds = {str(getattr(s, "particle", "photon")) for s in plan.sources}
+    if len(kinds) != 1:
+        raise PlanError(f"an ompmc run needs beams of one particle, this plan has {sorted(kinds)}; "
+                        "run each particle's beams as a plan of its own and add the doses")
+    return _IAEA_CODES[kinds.pop()]
+
+
 def _run_batch(eng: _Engine, plan: Plan, settings: TransportSettings, b: int, first: int,
                count: int) -> tuple[FloatArray, FloatArray, IntArray]:
     """(energy per voxel [MeV], ledger row, counter row) of histories first … first+count−1."""
@@ -413,7 +427,7 @@ def _run_batch(eng: _Engine, plan: Plan, settings: TransportSettings, b: int, fi
         energy = np.append(energy, energy[0])
         weight = np.append(weight, 0.0)
     base = eng.workdir / f"batch{b}"
-    write_phase_space(base, energy, pos_cm, direction, weight, scratch=True)
+    write_phase_space(base, energy, pos_cm, direction, weight, iaea_particle(plan), scratch=True)
     om = eng.module
     physics = om.Physics(**eng.physics, seeds=_key(settings.seed, settings.stream, b))
     with captured_output() as log:
