@@ -26,7 +26,13 @@ from tetdose.cli._common import (
     read_mapped_mesh,
 )
 from tetdose.errors import OptionError, PlanError
-from tetdose.transport.run.settings import ELECTRON_CUTOFF_MEV, ESTIMATORS, PHYSICS
+from tetdose.transport.run.settings import (
+    ELECTRON_CUTOFF_MEV,
+    ESTIMATORS,
+    PHOTON_SPLITTING,
+    PHYSICS,
+    RANGE_REJECTION_MEV,
+)
 
 MESH_SUFFIXES = (".vtu", ".vtk", ".xdmf", ".msh")
 
@@ -100,6 +106,15 @@ def add_run_args(parser: argparse.ArgumentParser, per: str = "") -> None:
                         default=ELECTRON_CUTOFF_MEV,
                         help=f"electron/positron cut-off and δ-ray threshold, kinetic [MeV] "
                              f"(default {ELECTRON_CUTOFF_MEV})")
+    parser.add_argument("--photon-splitting", type=int_at_least(1), default=PHOTON_SPLITTING,
+                        metavar="N", help="dose mode: follow each source photon as N copies of "
+                        "weight 1/N, Russian roulette for the electrons they set in motion "
+                        f"(unbiased; default {PHOTON_SPLITTING} = none)")
+    parser.add_argument("--range-rejection-mev", type=float_in(0.0, 20.0),
+                        default=RANGE_REJECTION_MEV, metavar="MEV",
+                        help="dose mode: an electron up to this energy that cannot leave its "
+                        "voxel or tet deposits there at once (0 = off; default "
+                        f"{RANGE_REJECTION_MEV:g})")
 
     parser.add_argument("--target-uncertainty", type=relative_uncertainty, metavar="PCT",
                         help="stop once the mean dose in --target-region has this relative "
@@ -133,7 +148,9 @@ def run_settings(args: argparse.Namespace, **kw: Any) -> Any:  # noqa: ANN401
                              seed=args.seed, estimator=args.estimator,
                              target_uncertainty=args.target_uncertainty,
                              target_region=args.target_region, physics=args.physics,
-                             electron_cutoff_mev=args.electron_cutoff_mev, **kw)
+                             electron_cutoff_mev=args.electron_cutoff_mev,
+                             photon_splitting=args.photon_splitting,
+                             range_rejection_mev=args.range_rejection_mev, **kw)
 
 
 def add_dask_arg(parser: argparse.ArgumentParser) -> None:

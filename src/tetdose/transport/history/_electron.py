@@ -37,9 +37,11 @@ one composition.
 
 **Ledger** (dose mode, MeV, columns after the photon ones of :mod:`._photon`): continuous loss
 deposited (L_E_DEPOSITED), e± escaped (L_E_ESCAPED), e± kinetic energy deposited below the cut-off
-(L_E_CUTOFF). A positron's energy in the ledger is T + 2mc² (its kinetic energy and the
-annihilation energy it releases: in pair production E = T₋ + (T₊ + 2mc²)); its annihilation
-photons then carry the 2mc² on.
+(L_E_CUTOFF), and the net energy Russian roulette removed (L_ROULETTE: the weight × energy of the
+charged particles it killed minus the energy it gave the survivors; zero on average, see
+:mod:`tetdose.transport.history._coupled`). A positron's energy in the ledger is T + 2mc² (its
+kinetic energy and the annihilation energy it releases: in pair production E = T₋ + (T₊ + 2mc²));
+its annihilation photons then carry the 2mc² on.
 """
 
 import math
@@ -73,12 +75,12 @@ ELECTRON, POSITRON, PHOTON = 0, 1, 2
 #: Electron rest energy [MeV] (CODATA 2018).
 ELECTRON_MASS_MEV = 0.51099895
 #: Dose-mode ledger columns after the photon ones, and the counters after the photon ones.
-L_E_DEPOSITED, L_E_ESCAPED, L_E_CUTOFF = 5, 6, 7
-N_LEDGER_DOSE = 8
+L_E_DEPOSITED, L_E_ESCAPED, L_E_CUTOFF, L_ROULETTE = 5, 6, 7, 8
+N_LEDGER_DOSE = 9
 C_E_STEPS, C_E_TRACKS = 7, 8
 N_COUNTS_DOSE = 9
-#: Columns of a stack row: energy, x, y, z, u, v, w, cell, species.
-STACK_COLUMNS = 9
+#: Columns of a stack row: energy, x, y, z, u, v, w, cell, species, statistical weight.
+STACK_COLUMNS = 10
 #: Steps in a row that move no mass thickness before the track is counted lost.
 MAX_IDLE_STEPS = 1000
 _TWO_PI = 2.0 * math.pi
@@ -86,13 +88,15 @@ _TWO_PI = 2.0 * math.pi
 
 @kernel
 def push(stack, n_stack, species, e, x, y, z, u, v, w, cell, tally, ledger, counts):
-    """Push a particle (energy [MeV]: kinetic for e±) on the stack; on a full stack deposit it in
-    ``cell`` instead (a positron with its annihilation energy) and count the overflow."""
+    """Push a particle of weight 1 (energy [MeV]: kinetic for e±) on the stack; on a full stack
+    deposit it in ``cell`` instead (a positron with its annihilation energy) and count the
+    overflow."""
     if n_stack < stack.shape[0]:
         r = stack[n_stack]
         r[0], r[1], r[2], r[3], r[4], r[5], r[6] = e, x, y, z, u, v, w
         r[7] = cell
         r[8] = species
+        r[9] = 1.0
         return n_stack + 1
     counts[C_STACK_FULL] += 1
     if species == PHOTON:

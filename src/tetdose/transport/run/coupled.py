@@ -68,4 +68,5 @@ def run_dose_rows(job, xs: CrossSections, settings: TransportSettings,  # noqa: 
     run_world_dose(*job.geom, xs, et, sig_hat, job.src, ps.electron, ps.positron, ps.volume,
                    ps.group_cdf, settings.seed, settings.stream, settings.n_histories,
                    settings.n_batches, b_start, b_stop, settings.energy_cutoff_mev,
-                   settings.max_energy_loss_fraction, energy, ledger, counts)
+                   settings.max_energy_loss_fraction, settings.photon_splitting,
+                   settings.range_rejection_mev, energy, ledger, counts)

@@ -147,17 +147,24 @@ def run_batches(job: TransportJob, xs: CrossSections, settings: TransportSetting
 
 def preflight(job: TransportJob, xs: CrossSections, settings: TransportSettings,
               workers: int) -> float:
-    """Run the first :data:`PILOT_HISTORIES` histories (the run's own streams, discarded): refuse
+    """Run the first :data:`PILOT_HISTORIES` histories (the run's own streams and physics —
+    coupled photon–electron histories in dose mode, with the run's splitting — discarded): refuse
     beams that reach neither the mesh nor the CT, and warn when the whole run is estimated to
     take longer than :data:`LONG_RUN_S` on ``workers`` parallel workers (refuse it beyond
     :data:`MAX_RUN_S`). Returns the estimate [s].
     """
     n = min(settings.n_histories, PILOT_HISTORIES)
     pilot = replace(settings, n_histories=n, n_batches=2)
-    run_batches(job, xs, replace(pilot, n_histories=2), 0, 2)  # compile / load, not timed
+    tiny = replace(pilot, n_histories=2)
+    run_batches(job, xs, tiny, 0, 2)  # compile / load, not timed
     t0 = time.perf_counter()
+    run_batches(job, xs, tiny, 0, 2)  # the fixed cost of a call (tables, tally, thread launch)
+    t1 = time.perf_counter()
     _, _, counts = run_batches(job, xs, pilot, 0, 2)
-    seconds = time.perf_counter() - t0
+    t2 = time.perf_counter()
+    # per-history cost without the call's fixed cost (a pilot of 1000 cheap kerma histories is
+    # otherwise mostly that), so the estimate scales with what a history costs: electrons too
+    seconds = max(t2 - t1 - (t1 - t0), 0.5 * (t2 - t1)) if n > 2 else t2 - t1
     if counts[:, C_MISSED].sum() == n:
         raise PlanError(f"none of the first {n} source photons reaches the {job.kind} world: "
                         "the beams miss it; check the beams' position_mm / direction / "
@@ -258,7 +265,9 @@ def physics_record(settings: TransportSettings) -> dict[str, object]:
                               "photon_cutoff_mev": settings.energy_cutoff_mev}
     if settings.physics == "dose":
         rec.update(electron_cutoff_mev=settings.electron_cutoff_mev,
-                   max_energy_loss_fraction=settings.max_energy_loss_fraction)
+                   max_energy_loss_fraction=settings.max_energy_loss_fraction,
+                   photon_splitting=settings.photon_splitting,
+                   range_rejection_mev=settings.range_rejection_mev)
     return rec
 
 

@@ -7,8 +7,13 @@ deposit: absorbed dose. ``"kerma"`` deposits every charged particle's energy whe
 sources need ``"dose"``. Cut-offs (kinetic energies): ``energy_cutoff_mev`` for photons (also
 the bremsstrahlung production threshold k_c), ``electron_cutoff_mev`` for e± (also the δ-ray
 production threshold Δ); ``max_energy_loss_fraction`` is the largest fraction of its energy an
-electron may lose in one step (EGSnrc's ESTEPE). The estimator is ``"track_length"`` (kerma
-default) or ``"analog"``; dose mode scores the analog energy deposition only.
+electron may lose in one step (EGSnrc's ESTEPE). ``photon_splitting`` n follows every source
+photon as n copies of weight 1/n and plays Russian roulette with the electrons they set in motion
+(unbiased; :mod:`tetdose.transport.history._coupled`; dose mode only). ``range_rejection_mev``
+E: an electron of at most E starting in a voxel or tet it cannot leave deposits its energy there
+at once (EGSnrc's ESAVE; only the hard bremsstrahlung it would have radiated stays too; 0: off).
+The estimator is ``"track_length"`` (kerma default) or ``"analog"``; dose mode scores the analog
+energy deposition only.
 """
 
 from __future__ import annotations
@@ -24,6 +29,10 @@ PHYSICS = ("dose", "kerma")
 #: Defaults of the electron settings (cut-off [MeV], ESTEPE).
 ELECTRON_CUTOFF_MEV = 0.2
 MAX_ENERGY_LOSS_FRACTION = 0.25
+#: Default photon splitting of dose mode (copies of each source photon).
+PHOTON_SPLITTING = 1
+#: Default largest electron energy of range rejection [MeV] (0: off).
+RANGE_REJECTION_MEV = 1.0
 #: Largest tally (n_batches × n_cells × 8 bytes) accepted by default.
 MAX_TALLY_BYTES = 2 * 1024**3
 
@@ -49,6 +58,10 @@ class TransportSettings:
     physics: str = "dose"
     electron_cutoff_mev: float = ELECTRON_CUTOFF_MEV
     max_energy_loss_fraction: float = MAX_ENERGY_LOSS_FRACTION
+    #: Copies of each source photon (weight 1/n each, electron Russian roulette); 1: none.
+    photon_splitting: int = PHOTON_SPLITTING
+    #: Range rejection below this electron energy [MeV] in cells it cannot leave; 0: off.
+    range_rejection_mev: float = RANGE_REJECTION_MEV
 
     def __post_init__(self) -> None:
         if int(self.n_batches) < 2:
@@ -81,7 +94,14 @@ class TransportSettings:
         if not 0.0 < self.max_energy_loss_fraction <= 0.5:
             raise PlanError(f"max_energy_loss_fraction must lie in (0, 0.5], got "
                             f"{self.max_energy_loss_fraction} (0.25 is EGSnrc's default)")
-        for name in ("n_histories", "n_batches", "seed", "stream"):
+        if not 1 <= int(self.photon_splitting) <= 1000:
+            raise PlanError(f"photon_splitting must be an integer in [1, 1000] (1 = none), got "
+                            f"{self.photon_splitting}")
+        if not 0.0 <= self.range_rejection_mev <= 20.0:
+            raise PlanError(f"range_rejection_mev must lie in [0, 20] MeV (0 = off), got "
+                            f"{self.range_rejection_mev}")
+        object.__setattr__(self, "range_rejection_mev", float(self.range_rejection_mev))
+        for name in ("n_histories", "n_batches", "seed", "stream", "photon_splitting"):
             object.__setattr__(self, name, int(getattr(self, name)))
 
     def check_tally_size(self, n_cells: int) -> None:
