@@ -72,7 +72,7 @@ import numpy as np
 
 from tetdose.errors import PlanError
 from tetdose.plan.beams import LinacBeam
-from tetdose.plan.photon_source import PhotonSource
+from tetdose.plan.photon_source import PhotonSource, check_source_keys
 from tetdose.plan.segments import DynamicSegment, beam_sources
 from tetdose.plan.spectra import is_named, named_spectrum, read_spectrum
 from tetdose.plan.volume_source import VolumeSource, volume_source_from_dict
@@ -254,11 +254,7 @@ class Plan:
 
 def _beam_from_dict(d: Mapping[str, Any], i: int, base_dir: Path) -> PhotonSource:
     where = f"beam {i + 1}"
-    unknown = set(d) - _BEAM_KEYS
-    if unknown:
-        raise PlanError(f"{where}: unknown key(s) {sorted(unknown)}; allowed: {sorted(_BEAM_KEYS)}")
-    if ("energy_mev" in d) == ("spectrum" in d):
-        raise PlanError(f"{where}: give exactly one of energy_mev or spectrum")
+    check_source_keys(d, _BEAM_KEYS, where)
     if "type" not in d or "position_mm" not in d:
         raise PlanError(f"{where}: type and position_mm are required")
     _check_numbers(d, where)

@@ -9,8 +9,9 @@ into sources of kind "linac", one per open segment.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -109,3 +110,13 @@ class PhotonSource:
     def mean_energy_mev(self) -> float:
         w = np.asarray(self.line_weights)
         return float(np.dot(w, self.energies_mev) / w.sum())
+
+
+def check_source_keys(d: Mapping[str, Any], allowed: set[str], where: str) -> None:
+    """PlanError unless the ``[[beam]]`` table ``d`` uses only ``allowed`` keys and gives exactly
+    one of ``energy_mev`` and ``spectrum``."""
+    unknown = set(d) - allowed
+    if unknown:
+        raise PlanError(f"{where}: unknown key(s) {sorted(unknown)}; allowed: {sorted(allowed)}")
+    if ("energy_mev" in d) == ("spectrum" in d):
+        raise PlanError(f"{where}: give exactly one of energy_mev or spectrum")

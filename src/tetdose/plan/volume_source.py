@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from tetdose.errors import PlanError
-from tetdose.plan.photon_source import PARTICLES
+from tetdose.plan.photon_source import PARTICLES, check_source_keys
 from tetdose.plan.spectra import is_named, named_spectrum, read_spectrum
 
 _KEYS = {"type", "particle", "energy_mev", "spectrum", "region", "weight"}
@@ -70,11 +70,7 @@ class VolumeSource:
 def volume_source_from_dict(d: Mapping[str, Any], i: int, base_dir: Path) -> VolumeSource:
     """A ``[[beam]] type = "volume"`` table (module docstring) → :class:`VolumeSource`."""
     where = f"beam {i + 1} (volume)"
-    unknown = set(d) - _KEYS
-    if unknown:
-        raise PlanError(f"{where}: unknown key(s) {sorted(unknown)}; allowed: {sorted(_KEYS)}")
-    if ("energy_mev" in d) == ("spectrum" in d):
-        raise PlanError(f"{where}: give exactly one of energy_mev or spectrum")
+    check_source_keys(d, _KEYS, where)
     for key in ("energy_mev", "weight"):
         if key in d and (isinstance(d[key], bool) or not isinstance(d[key], int | float)):
             raise PlanError(f"{where}: {key} = {d[key]!r} is not a number; write e.g. "
