@@ -160,6 +160,24 @@ def test_transport_cross_section_of_water_matches_elsepa(t, tol):
     assert ours == pytest.approx(elsepa, rel=tol)
 
 
+@pytest.mark.parametrize("eta", [1e-6, 1e-3, 0.1, 1.0, 10.0])
+def test_screened_rutherford_moments_match_quadrature(eta):
+    """⟨1 − μ⟩ and ⟨(1 − μ)²⟩ of p(μ) ∝ (1 − μ + 2η)⁻² in closed form against quadrature."""
+    norm = quad(lambda mu: (1 - mu + 2 * eta) ** -2, -1, 1, points=[1 - 2 * eta], limit=200)[0]
+    m = [quad(lambda mu, k=k: (1 - mu) ** k * (1 - mu + 2 * eta) ** -2, -1, 1,
+              points=[1 - 2 * eta], limit=200)[0] / norm for k in (1, 2)]
+    m1, m2 = ex.wentzel_moments(eta)
+    assert m1 == pytest.approx(m[0], rel=1e-7) and m2 == pytest.approx(m[1], rel=1e-6)
+
+
+def test_second_transport_cross_section_of_water():
+    """λ₁/λ₂ = 3 − (3/2)⟨t²⟩/⟨t⟩: close to 3 − 3/(ln(1/η) − 1) for MeV electrons (small η, about
+    2.6 in water), rising towards 3 with energy; 1/λ₂ scales with 1/λ₁."""
+    t = np.array([0.1, 1.0, 10.0])
+    ratio = ex.lambda2_inverse("water", t) / ex.lambda1_inverse("water", t)
+    assert np.all((ratio > 2.3) & (ratio < 2.9)) and np.all(np.diff(ratio) > 0)
+
+
 @pytest.fixture(scope="module")
 def tables():
     return ex.build_electron_tables(["water", "lung", "cortical_bone", "air"], cutoff_mev=0.1,
@@ -171,7 +189,8 @@ def test_tables_shape_grid_and_read_only(tables):
     assert n == math.ceil(math.log10(200.0) * ex.POINTS_PER_DECADE) + 1
     assert math.exp(tables.ln_e_min) == pytest.approx(0.1, rel=1e-14)
     assert math.exp(tables.ln_e_min + (n - 1) * tables.d_ln_e) == pytest.approx(20.0, rel=1e-12)
-    for name in ("stopping", "range_g_cm2", "sigma_delta", "sigma_brems", "lambda1_inv"):
+    for name in ("stopping", "range_g_cm2", "sigma_delta", "sigma_brems", "lambda1_inv",
+                 "lambda2_inv"):
         arr = getattr(tables, name)
         assert arr.shape == (4, 2, n) and not arr.flags.writeable and arr.flags.c_contiguous
     assert tables.sigma_annih.shape == (4, n) and tables.brems_z13.shape == (4,)

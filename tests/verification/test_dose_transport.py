@@ -141,7 +141,8 @@ def _csda_tables(cutoff_mev=0.001):
     r[:, :, 0] = 0.0
     zero = np.zeros_like(et.sigma_delta)
     return et._replace(stopping=s, range_g_cm2=r, sigma_delta=zero, sigma_brems=zero.copy(),
-                       sigma_annih=np.zeros_like(et.sigma_annih), lambda1_inv=zero.copy())
+                       sigma_annih=np.zeros_like(et.sigma_annih), lambda1_inv=zero.copy(),
+                       lambda2_inv=zero.copy())
 
 
 @njit(cache=True)

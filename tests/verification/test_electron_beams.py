@@ -18,7 +18,14 @@ R50 and Rp are read between the 1 mm bins' centres by linear interpolation; the 
 least-squares line through the bins between 20 % and 80 % of the maximum (the fall-off of a
 mono-energetic beam is straight there); the tail level is the mean dose from Rp + 5 mm on;
 D_max from a parabola through the peak (:func:`peak_dose`).
-Tolerance 1 mm (issue 19).
+
+The reference of the same physics is EGSnrc, run side by side (ompmc, PEGS 700icru, so the
+electron cut-off and δ-ray threshold Δ = 0.189 MeV are tetdose's): R50 and Rp within 1 mm, the
+depth dose within 2 % of D_max + 3σ beyond 2 mm, and no dependence on the step size (ESTEPE 0.25
+vs 0.05 within 0.5 mm). TG-25's relations are fits to clinical beams; EGSnrc itself misses them
+for these mono-energetic broad beams (measured: R50 24.3 / 42.0 / 85.5 mm against 25.8 / 42.9 /
+85.8, Rp 29.5 / 49.9 / 100.5 against 29.1 / 49.1 / 98.7), so tetdose is held to TG-25 as closely
+as EGSnrc is (its miss + 0.5 mm, and at least 1 mm).
 """
 
 from __future__ import annotations
@@ -33,6 +40,10 @@ from tetdose.transport import PhotonSource, Plan, TransportSettings, simulate
 C4_MEV_PER_CM = 2.33
 #: Lateral size of the water column [mm] and depth-bin thickness [mm].
 WIDTH_MM, BIN_MM = 800.0, 1.0
+#: Electron cut-off and δ-ray threshold [MeV] kinetic: PEGS 700icru's AE = 0.700 MeV total.
+CUTOFF_MEV = 0.189
+#: Histories per curve.
+HISTORIES = 100_000
 
 
 def tg25_r50_mm(e0_mev: float) -> float:
@@ -46,16 +57,27 @@ def tg25_rp_mm(e0_mev: float) -> float:
     return (-b + np.sqrt(b * b - 4 * a * c)) / (2 * a) * 10.0
 
 
-def depth_dose(e0_mev: float, n: int, cutoff_mev: float = 0.2, seed: int = 1
+def depth_dose(e0_mev: float, n: int, cutoff_mev: float = CUTOFF_MEV, seed: int = 1,
+               engine: str = "tetdose", max_energy_loss_fraction: float = 0.25,
                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(bin centres [mm], dose per history per bin [MeV/g ∝ Gy], σ) of a broad e⁻ beam."""
+    """(bin centres [mm], dose per history per bin [MeV/g ∝ Gy], σ) of a broad e⁻ beam computed
+    by tetdose or by ompmc (``engine="ompmc"``: EGSnrc physics, PEGS 700icru, one thread)."""
     nz = int(np.ceil(e0_mev * 6.0 / BIN_MM)) + 20  # Rp ≈ 5 mm/MeV, then the tail
     grid = ImageGrid([0.0, 0.0, BIN_MM / 2], [WIDTH_MM, WIDTH_MM, BIN_MM], np.eye(3), (1, 1, nz))
     plan = Plan((PhotonSource("pencil", (0.0, 0.0, -5.0), (0, 0, 1), energies_mev=(e0_mev,),
                               particle="electron"),), materials={1: "water"})
-    res = simulate(Image(np.ones(grid.shape), grid), plan,
-                   TransportSettings(n, 10, seed, electron_cutoff_mev=cutoff_mev),
-                   labels=Image(np.ones(grid.shape, np.int32), grid), progress=False)
+    density = Image(np.ones(grid.shape), grid)
+    labels = Image(np.ones(grid.shape, np.int32), grid)
+    settings = TransportSettings(n, 10, seed, electron_cutoff_mev=cutoff_mev,
+                                 max_energy_loss_fraction=max_energy_loss_fraction)
+    if engine == "ompmc":
+        from tetdose.coupling.ompmc import OmpmcOptions, simulate_ompmc
+
+        res = simulate_ompmc(density, plan, settings, labels=labels, progress=False,
+                             options=OmpmcOptions(pegs="700icru", electron_cutoff_mev=cutoff_mev,
+                                                  threads=1))
+    else:
+        res = simulate(density, plan, settings, labels=labels, progress=False)
     e = res.energy_per_batch_mev.reshape(10, -1) / res.histories_per_batch[:, None]
     mass_g = res.mass_g.reshape(-1)
     d = e / mass_g
@@ -103,34 +125,57 @@ def test_r50_and_rp_of_a_synthetic_curve():
     assert rp == pytest.approx(30.0 + 0.97 / 0.08, abs=1e-9)
 
 
-#: Measured (10⁵ histories, 0.2 MeV cut-off, ESTEPE 0.25): R50 25.2 / 42.9 / 85.9 mm (TG-25 25.8 /
-#: 42.9 / 85.8) and Rp 30.8 / 51.7 / 102.9 mm (TG-25 29.1 / 49.1 / 98.7). EGSnrc (ompmc, same
-#: phantom, 700icru so Δ = 0.189 MeV as tetdose's): R50 24.4 / 42.0 / 85.5, Rp 29.6 / 50.1 / 100.8 —
-#: itself 0.5–2 mm beyond TG-25's Rp (a fit to clinical beams). tetdose's remaining gap to EGSnrc is
-#: step-size dependence: at 10 MeV ESTEPE 0.25 → 0.05 → 0.01 gives R50 42.9 → 42.65 → 42.25 mm
-#: and Rp 51.75 → 50.99 → 50.45 mm (and the surface dose 1.03 → 1.01 × EGSnrc's).
-RP_XFAIL = "Rp 1.7-4 mm beyond TG-25 (EGSnrc 0.5-2 mm; step-size dependence), see above"
+#: Measured (10⁵ histories each, Δ = 0.189 MeV, ESTEPE 0.25): tetdose R50 24.23 / 41.72 / 84.97 mm,
+#: Rp 29.42 / 49.93 / 99.74 mm; EGSnrc (ompmc) R50 24.29 / 41.99 / 85.46, Rp 29.54 / 49.89 / 100.47.
+#: Before the multiple-scattering law had the right second moment (first moment only), Rp was
+#: 1.2–2 mm deeper than EGSnrc's and moved 1.3 mm between ESTEPE 0.25 and 0.01.
+ENERGIES_MEV = (6.0, 10.0, 20.0)
 
 
 @pytest.fixture(scope="module")
-def curves() -> dict[float, tuple[float, float]]:
+def curves() -> dict[tuple[str, float], tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Depth-dose curves by (engine, energy): tetdose, tetdose at ESTEPE 0.05, and ompmc."""
+    pytest.importorskip("ompmc", reason="ompmc (tetdose[ompmc]) is the EGSnrc reference")
     out = {}
-    for e0 in (6.0, 10.0, 20.0):
-        z, d, _ = depth_dose(e0, 100_000)
-        out[e0] = r50_rp_mm(z, d)
+    for e0 in ENERGIES_MEV:
+        out["tetdose", e0] = depth_dose(e0, HISTORIES)
+        out["estepe 0.05", e0] = depth_dose(e0, HISTORIES, max_energy_loss_fraction=0.05)
+        out["ompmc", e0] = depth_dose(e0, HISTORIES, engine="ompmc")
     return out
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("e0_mev", [6.0, 10.0, 20.0])
-def test_broad_electron_beam_r50_matches_tg25(curves, e0_mev):
-    r50, rp = curves[e0_mev]
-    assert r50 == pytest.approx(tg25_r50_mm(e0_mev), abs=1.0), (r50, rp)
+@pytest.mark.parametrize("e0_mev", ENERGIES_MEV)
+def test_broad_electron_beam_r50_and_rp_match_egsnrc(curves, e0_mev):
+    ours = r50_rp_mm(*curves["tetdose", e0_mev][:2])
+    egs = r50_rp_mm(*curves["ompmc", e0_mev][:2])
+    assert ours == pytest.approx(egs, abs=1.0), (ours, egs)
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(reason=RP_XFAIL, strict=False)
-@pytest.mark.parametrize("e0_mev", [6.0, 10.0, 20.0])
-def test_broad_electron_beam_rp_matches_tg25(curves, e0_mev):
-    r50, rp = curves[e0_mev]
-    assert rp == pytest.approx(tg25_rp_mm(e0_mev), abs=1.0), (r50, rp)
+@pytest.mark.parametrize("e0_mev", ENERGIES_MEV)
+def test_broad_electron_beam_depth_dose_matches_egsnrc(curves, e0_mev):
+    z, d, sd = curves["tetdose", e0_mev]
+    _, d_ref, sd_ref = curves["ompmc", e0_mev]
+    d_max = peak_dose(z, d_ref)
+    beyond = z > 2.0
+    allowed = 0.02 * d_max + 3.0 * np.hypot(sd, sd_ref)
+    assert np.all(np.abs(d - d_ref)[beyond] <= allowed[beyond])
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("e0_mev", ENERGIES_MEV)
+def test_broad_electron_beam_does_not_depend_on_the_step_size(curves, e0_mev):
+    big = r50_rp_mm(*curves["tetdose", e0_mev][:2])
+    small = r50_rp_mm(*curves["estepe 0.05", e0_mev][:2])
+    assert big == pytest.approx(small, abs=0.5), (big, small)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("e0_mev", ENERGIES_MEV)
+def test_broad_electron_beam_is_as_close_to_tg25_as_egsnrc(curves, e0_mev):
+    tg25 = np.array([tg25_r50_mm(e0_mev), tg25_rp_mm(e0_mev)])
+    ours = np.array(r50_rp_mm(*curves["tetdose", e0_mev][:2]))
+    egs = np.array(r50_rp_mm(*curves["ompmc", e0_mev][:2]))
+    allowed = np.maximum(np.abs(egs - tg25) + 0.5, 1.0)
+    assert np.all(np.abs(ours - tg25) <= allowed), (ours, egs, tg25)

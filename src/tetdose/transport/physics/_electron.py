@@ -22,10 +22,20 @@ thicknesses in g/cm², and return the new RNG state first when they sample
 - positron annihilation in flight: Heitler's DCS (PENELOPE-2008 manual, Salvat et al., §3.4),
   dσ/dζ ∝ S(ζ) + S(1 − ζ), S(ζ) = −(γ + 1)² + (γ² + 4γ + 1)/ζ − 1/ζ², ζ = k₁/(T + 2mc²) ∈
   [ζ_min, 1 − ζ_min], ζ_min = 1/(γ + 1 + sqrt(γ² − 1)); cos θᵢ = (γ + 1 − 1/ζᵢ)/sqrt(γ² − 1);
-- multiple elastic scattering over a step s: the Wentzel (screened Rutherford) shape
-  p(μ) ∝ (1 − μ + 2A)⁻² with A solved so that ⟨1 − μ⟩ = 2A[(1 + A) ln(1 + 1/A) − 1]
-  = 1 − exp(−s/λ₁) exactly (Goudsmit–Saunderson first moment; the shape of PENELOPE's and
-  Geant4 WentzelVI's models), μ = 1 − 2Au/(1 + A − u) by inversion; isotropic when
+- multiple elastic scattering over a step s: a distribution with the exact Goudsmit–Saunderson
+  first and second moments, ⟨1 − μ⟩ = G₁ = 1 − exp(−s/λ₁) and ⟨P₂(μ)⟩ = exp(−s/λ₂), i.e.
+  ⟨(1 − μ)²⟩ = T₂ = (3G₁ − G₂)/(3/2) with G₂ = 1 − exp(−s/λ₂) (the random hinge then gives the
+  spatial moments of the step to second order, Kawrakow & Bielajew 1998; with the first moment
+  alone the spread, and so the practical range of electron beams, grows with the step size).
+  The base is the Wentzel (screened Rutherford) shape p_W(μ) ∝ (1 − μ + 2A)⁻² with A solved so
+  that ⟨1 − μ⟩ = 2A[(1 + A) ln(1 + 1/A) − 1] = G₁ (the shape of PENELOPE's and Geant4
+  WentzelVI's models), sampled as μ = 1 − 2Au/(1 + A − u). Its second moment
+  M₂(A) = 2A(1 + A)[2 + 2A − 2A²/(1 + A) − 4A ln(1 + 1/A)] exceeds T₂ for the steps of the
+  transport (by 70 % at s/λ₁ = 0.1, 2 MeV in water); the excess is removed by a mixture with a fixed
+  deflection at the mean, p = (1 − B) p_W + B δ(1 − μ − G₁), B = (M₂ − T₂)/(M₂ − G₁²), which
+  keeps the first moment and gives T₂ exactly (an artificial law with the two exact moments, as
+  PENELOPE uses for its soft scattering; tests/verification/test_electron_beams.py shows the step
+  size no longer moves R50 or Rp). Isotropic when
   exp(−s/λ₁) < 1e-6.
 """
 
@@ -321,11 +331,26 @@ def wentzel_screening(m1):
 
 
 @kernel
+def wentzel_second(a):
+    """⟨(1 − μ)²⟩ = 2A(1 + A)[2 + 2A − 2A²/(1 + A) − 4A ln(1 + 1/A)] of p(μ) ∝ (1 − μ + 2A)⁻²."""
+    return 2.0 * a * (1.0 + a) * (2.0 + 2.0 * a - 2.0 * a * a / (1.0 + a)
+                                  - 4.0 * a * math.log1p(1.0 / a))
+
+
+@kernel
+def lambda2_inverse(et, m, sp, e):
+    """Second transport mass cross section 1/λ₂ [cm²/g] at e [MeV]."""
+    i, f = electron_position(et, e)
+    return (1.0 - f) * et.lambda2_inv[m, sp, i] + f * et.lambda2_inv[m, sp, i + 1]
+
+
+@kernel
 def sample_ms_cos(et, m, sp, e, s_g_cm2, state):
     """Polar deflection cos θ after a step of mass thickness s_g_cm2 [g/cm²] at energy e [MeV].
 
-    p(μ) ∝ (1 − μ + 2A)⁻² with ⟨1 − μ⟩ = 1 − exp(−s/λ₁(e)) exactly (module docstring);
-    isotropic for s/λ₁ > ln 1e6; cos θ = 1 for s ≤ 0.
+    Wentzel shape mixed with a fixed deflection so that ⟨1 − μ⟩ = 1 − exp(−s/λ₁) and
+    ⟨P₂(μ)⟩ = exp(−s/λ₂) exactly (module docstring); isotropic for s/λ₁ > ln 1e6;
+    cos θ = 1 for s ≤ 0.
     """
     x = s_g_cm2 * lambda1_inverse(et, m, sp, e)
     if not x > 0.0:
@@ -333,5 +358,13 @@ def sample_ms_cos(et, m, sp, e, s_g_cm2, state):
     state, u = next_uniform(state)
     if x > _ISOTROPIC_X:
         return state, 2.0 * u - 1.0
-    a = wentzel_screening(-math.expm1(-x))
+    g1 = -math.expm1(-x)
+    a = wentzel_screening(g1)
+    t2 = (3.0 * g1 + math.expm1(-s_g_cm2 * lambda2_inverse(et, m, sp, e))) / 1.5
+    m2 = wentzel_second(a)
+    if t2 < m2:
+        b = (m2 - t2) / (m2 - g1 * g1)
+        if u < b:
+            return state, 1.0 - g1
+        u = (u - b) / (1.0 - b)
     return state, 1.0 - 2.0 * a * u / (1.0 + a - u)

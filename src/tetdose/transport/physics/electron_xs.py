@@ -54,7 +54,12 @@ is then analytic: σ₁ = 2π Z(Z + 1) r_e² (mc²)²/(β²p²c²) {ln(1 + 1/η)
 1/λ₁ = N_A Σ wᵢ σ₁,ᵢ/Aᵢ. Against the Dirac partial-wave σ₁ of ELSEPA (Salvat, Jablonski &
 Powell 2005; the method of ICRU Report 77) for water, its Z² part agrees within 1 % from
 100 keV to 10 MeV and is 4.6 % low at 10 keV (tests/unit/test_electron_xs.py); without the
-Mott factor it would be 7–8 % high above 1 MeV.
+Mott factor it would be 7–8 % high above 1 MeV. The second transport cross section (the
+Goudsmit–Saunderson moment ⟨P₂(μ)⟩ = exp(−s/λ₂) after a path s) is σ₂ = σ₁ · R(η) per element,
+R(η) = ⟨1 − P₂(μ)⟩/⟨1 − μ⟩ of the screened Rutherford shape itself: with t = 1 − μ,
+⟨t⟩ = 2η[(1 + η) ln(1 + 1/η) − 1], ⟨t²⟩ = 2η(1 + η)[2 + 2η − 2η²/(1 + η) − 4η ln(1 + 1/η)] and
+⟨1 − P₂⟩ = 3⟨t⟩ − (3/2)⟨t²⟩, so R = 3 − (3/2)⟨t²⟩/⟨t⟩ (≈ 2.6 for MeV electrons in water;
+the Mott factor is taken to scale σ₁ and σ₂ alike).
 
 **Ranges**: restricted range R(T) = ∫_{T_cut}^T dT'/L(T') with L = L_col(Δ) + L_rad(k_c), by
 8-point Gauss–Legendre in ln T on every grid interval; :func:`csda_range_g_cm2` is the
@@ -99,6 +104,8 @@ __all__ = [
     "hard_brems_cross_section",
     "heitler_cross_section",
     "lambda1_inverse",
+    "lambda2_inverse",
+    "wentzel_moments",
     "mean_excitation_ev",
     "moller_cross_section",
     "radiative_stopping_power",
@@ -138,7 +145,8 @@ class ElectronTables(NamedTuple):
     [MeV cm²/g]; ``range_g_cm2[m, sp, k]``: ∫_Δ^{T_k} dT/L [g/cm²]; ``sigma_delta[m, sp, k]``:
     Møller (sp 0) / Bhabha (sp 1) above Δ [cm²/g]; ``sigma_brems[m, sp, k]``: bremsstrahlung
     above k_c [cm²/g]; ``sigma_annih[m, k]``: positron annihilation in flight [cm²/g];
-    ``lambda1_inv[m, sp, k]``: first transport mass cross section [cm²/g];
+    ``lambda1_inv[m, sp, k]``, ``lambda2_inv[m, sp, k]``: first and second transport mass cross
+    sections [cm²/g];
     ``brems_z13[m]``, ``brems_c[m]``: Z_eff^{1/3} and (4/3) ln Z_eff of the photon spectrum shape.
     Δ = ``cutoff_mev`` is the first grid node, k_c = ``photon_cutoff_mev``.
     """
@@ -153,6 +161,7 @@ class ElectronTables(NamedTuple):
     sigma_brems: np.ndarray
     sigma_annih: np.ndarray
     lambda1_inv: np.ndarray
+    lambda2_inv: np.ndarray
     brems_z13: np.ndarray
     brems_c: np.ndarray
 
@@ -423,15 +432,26 @@ def heitler_cross_section(material: Material | str, t_mev: FloatArray) -> FloatA
     return AVOGADRO * med.z_over_a * sigma
 
 
-def lambda1_inverse(material: Material | str, t_mev: FloatArray,
-                    species: int = ELECTRON) -> FloatArray:
-    """First transport mass cross section 1/λ₁ [cm²/g], screened Rutherford × Mott (docstring)."""
+def wentzel_moments(eta: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """(⟨t⟩, ⟨t²⟩), t = 1 − μ, of the screened Rutherford shape p(μ) ∝ (1 − μ + 2η)⁻² on [−1, 1]
+    (formulas in the module docstring)."""
+    eta = np.asarray(eta, dtype=np.float64)
+    log_term = np.log1p(1.0 / eta)
+    m1 = 2.0 * eta * ((1.0 + eta) * log_term - 1.0)
+    m2 = 2.0 * eta * (1.0 + eta) * (2.0 + 2.0 * eta - 2.0 * eta**2 / (1.0 + eta)
+                                     - 4.0 * eta * log_term)
+    return m1, m2
+
+
+def _elastic_terms(material: Material | str, t_mev: FloatArray, species: int
+                   ) -> list[tuple[FloatArray, FloatArray]]:
+    """Per element: (N_A wᵢ/Aᵢ · σ₁,ᵢ [cm²/g], Molière's η) at kinetic energies t_mev [MeV]."""
     med = _medium(material)
     sign = 1.0 if species == ELECTRON else -1.0
     t = np.asarray(t_mev, dtype=np.float64)
     _, beta2 = _kinematics(t)
     pc2 = t * (t + 2.0 * ELECTRON_MASS_MEV)  # (pc)² [MeV²]
-    total = np.zeros(np.shape(t))
+    out = []
     for z, w, a in zip(med.z, med.w, med.atomic_weight, strict=True):
         eta = (0.25 * (FINE_STRUCTURE * ELECTRON_MASS_MEV / 0.885) ** 2 / pc2 * z ** (2.0 / 3.0)
                * (1.13 + 3.76 * (FINE_STRUCTURE * z) ** 2 / beta2))
@@ -440,7 +460,23 @@ def lambda1_inverse(material: Material | str, t_mev: FloatArray,
         mott = (-beta2 * (1.0 - 2.0 * eta * log_term + eta / (1.0 + eta))
                 + sign * math.pi * FINE_STRUCTURE * z * np.sqrt(beta2))
         sigma1 = 2.0 * math.pi * k * (log_term - 1.0 / (1.0 + eta) + mott)
-        total = total + AVOGADRO * w / a * sigma1
+        out.append((AVOGADRO * w / a * sigma1, eta))
+    return out
+
+
+def lambda1_inverse(material: Material | str, t_mev: FloatArray,
+                    species: int = ELECTRON) -> FloatArray:
+    """First transport mass cross section 1/λ₁ [cm²/g], screened Rutherford × Mott (docstring)."""
+    return sum(s1 for s1, _ in _elastic_terms(material, t_mev, species))
+
+
+def lambda2_inverse(material: Material | str, t_mev: FloatArray,
+                    species: int = ELECTRON) -> FloatArray:
+    """Second transport mass cross section 1/λ₂ [cm²/g]: Σ σ₁,ᵢ R(ηᵢ) (module docstring)."""
+    total = 0.0
+    for s1, eta in _elastic_terms(material, t_mev, species):
+        m1, m2 = wentzel_moments(eta)
+        total = total + s1 * (3.0 - 1.5 * m2 / m1)
     return total
 
 
@@ -518,7 +554,7 @@ def _tables(materials: tuple[str | Material, ...], cutoff_mev: float, photon_cut
     t[0] = cutoff_mev
     n_mat = len(materials)
     stopping, rng, s_delta, s_brems = (np.empty((n_mat, 2, n)) for _ in range(4))
-    s_annih, l1 = np.empty((n_mat, n)), np.empty((n_mat, 2, n))
+    s_annih, l1, l2 = np.empty((n_mat, n)), np.empty((n_mat, 2, n)), np.empty((n_mat, 2, n))
     z13, cz = np.empty(n_mat), np.empty(n_mat)
     for m, mat in enumerate(materials):
         for sp in (ELECTRON, POSITRON):
@@ -529,13 +565,14 @@ def _tables(materials: tuple[str | Material, ...], cutoff_mev: float, photon_cut
             rng[m, sp] = _cumulative_range(ln_nodes, total)
             s_brems[m, sp] = hard_brems_cross_section(mat, sp, t, photon_cutoff_mev)
             l1[m, sp] = lambda1_inverse(mat, t, sp)
+            l2[m, sp] = lambda2_inverse(mat, t, sp)
         s_delta[m, ELECTRON] = moller_cross_section(mat, t, cutoff_mev)
         s_delta[m, POSITRON] = bhabha_cross_section(mat, t, cutoff_mev)
         s_annih[m] = heitler_cross_section(mat, t)
         z13[m], cz[m] = _brems_shape(mat)
     return ElectronTables(
         ln_e_min, d_ln_e, cutoff_mev, photon_cutoff_mev,
-        *(_frozen(a) for a in (stopping, rng, s_delta, s_brems, s_annih, l1, z13, cz)),
+        *(_frozen(a) for a in (stopping, rng, s_delta, s_brems, s_annih, l1, l2, z13, cz)),
     )
 
 
