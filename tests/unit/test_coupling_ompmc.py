@@ -269,3 +269,30 @@ def test_electron_beams_reach_ompmc_as_electrons():
                           progress=False, options=om.OmpmcOptions(electron_cutoff_mev=0.2,
                                                                   n_split=1))
     assert r.ledger["deposited_mev"] > 0.8 * 6.0
+
+
+def test_ompmc_scores_nothing_below_its_density_threshold():
+    """2 MeV photons through water with 2 mm layers of low density: ompmc leaves the layers below
+    UNSCORED_BELOW_G_CM3 at zero (warning, recorded); tetdose's engine gives every layer the dose
+    of the water in front times about the stopping-power ratio (Bragg–Gray cavities: the electron
+    fluence crosses a thin layer unchanged; air/water ≈ 0.88, lung/water ≈ 1)."""
+    dens = (0.02, 0.04, 0.05, 0.1)
+    grid = ImageGrid([0.0, 0.0, 0.5], [200.0, 200.0, 1.0], np.eye(3), (1, 1, 40))
+    rho = np.ones(grid.shape)
+    for i, d in enumerate(dens):
+        rho[20 + 2 * i:22 + 2 * i] = d
+    density = Image(rho, grid)
+    plan = Plan((PhotonSource("pencil", (0.0, 0.0, -5.0), (0, 0, 1), energies_mev=(2.0,)),))
+    settings = TransportSettings(20_000, 4, 1, electron_cutoff_mev=0.189)
+    with pytest.warns(UserWarning, match="ompmc scores no energy"):
+        res = om.simulate_ompmc(density, plan, settings, progress=False, options=om.OmpmcOptions(
+            pegs="700icru", electron_cutoff_mev=0.189, threads=1))
+    assert res.extra["unscored_voxels"] == 4
+    ours = simulate(density, plan, settings, progress=False)
+    per_mass = {}
+    for name, r in (("ompmc", res), ("tetdose", ours)):
+        d = r.energy_per_batch_mev.sum(axis=0) / r.mass_g.reshape(-1)
+        per_mass[name] = np.array([d[20 + 2 * i:22 + 2 * i].mean() for i in range(len(dens))])
+        per_mass[name] /= d[12:20].mean()  # the water in front
+    assert np.all(per_mass["ompmc"][:2] == 0.0) and np.all(per_mass["ompmc"][2:] > 0.8)
+    assert np.all((per_mass["tetdose"] > 0.78) & (per_mass["tetdose"] < 1.08)), per_mass
