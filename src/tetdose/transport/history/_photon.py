@@ -32,24 +32,19 @@ from numba import njit
 from tetdose._constants import MM_PER_CM
 from tetdose._jit import kernel
 from tetdose._random import next_uniform
-from tetdose.transport.geometry._tet import (
-    MAX_ZERO_STEPS,
-    SUPPORTING,
-    density_at,
-    exit_face,
-    next_tet,
-    prefetch_neighbours,
-    relocate,
-)
+from tetdose.transport.geometry._tet import MAX_ZERO_STEPS, exit_face, next_tet, prefetch_neighbours
 from tetdose.transport.geometry._voxel import dda_init, dda_step
-from tetdose.transport.geometry._world import (
-    HIT_TOL_MM,
-    cell_material,
-    mesh_hit_in_voxel,
-    vacuum_flight,
-    voxel_cell_at,
-    voxel_ijk,
+from tetdose.transport.geometry._walk import (
+    MAX_SWITCHES,
+    after_grid,
+    after_mesh,
+    column_distance,
+    relocated,
+    tet_column,
+    voxel_material,
+    voxel_stretch_end,
 )
+from tetdose.transport.geometry._world import HIT_TOL_MM, cell_material, voxel_ijk
 from tetdose.transport.physics._photon import interact, transport_coefficients
 
 #: Ledger columns and counter columns.
@@ -59,11 +54,6 @@ C_MISSED = 6  # source photons whose ray meets neither the mesh nor the grid
 N_LEDGER, N_COUNTS = 5, 7
 #: Flight outcomes (ENTERS: a voxel flight reached the mesh).
 INTERACTS, ESCAPES, LOST, ENTERS = 0, 1, 2, 3
-#: Mesh ↔ voxel switches allowed in one flight before the photon is counted lost.
-MAX_SWITCHES = 10_000
-#: Nudge along the ray before a relocation [mm], and relocations allowed per flight.
-RELOCATE_NUDGE_MM = 1e-6
-MAX_RELOCATIONS = 4
 
 
 @njit(cache=True, inline="always")
@@ -94,22 +84,16 @@ def flight_mesh(g, xs, e, k, entry, x, y, z, u, v, w, tau, track, tally, counts)
         f, t = exit_face(g, k, x, y, z, u, v, w, entry)
         if f < 0 or zero_steps > MAX_ZERO_STEPS:
             counts[C_RELOCATIONS] += 1
-            n_reloc += 1
-            k = relocate(g, x, y, z, u, v, w, RELOCATE_NUDGE_MM)
-            if k < 0 or n_reloc > MAX_RELOCATIONS:
+            k, x, y, z, n_reloc = relocated(g, x, y, z, u, v, w, n_reloc)
+            if k < 0:
                 counts[C_CROSSINGS] += crossings
                 return LOST, k, x, y, z, 0.0
-            nudge = RELOCATE_NUDGE_MM
-            x, y, z = x + nudge * u, y + nudge * v, z + nudge * w
             entry = -1
             zero_steps = 0
             continue
-        rho0 = max(density_at(g, k, x, y, z), 0.0)
-        a = g.density[k, 0] * u + g.density[k, 1] * v + g.density[k, 2] * w
-        col_exit = rho0 * t + 0.5 * a * t * t
+        rho0, a, col_exit = tet_column(g, k, x, y, z, u, v, w, t)
         if need < col_exit:
-            den = rho0 + math.sqrt(max(rho0 * rho0 + 2.0 * a * need, 0.0))
-            s = 2.0 * need / den if den > 0.0 else 0.0
+            s = column_distance(rho0, a, need, 0.0)
             if track:
                 tally[k] += kerma * need
             counts[C_CROSSINGS] += crossings
@@ -146,20 +130,12 @@ def flight_voxel(wg, xs, e, vid, x, y, z, u, v, w, tau, t_min, track, tally, cou
     steps = 0
     while True:
         vid = (k * ny + j) * nx + i
-        m = g.material[vid]
-        listed = m < 0  # the voxel lists mesh triangles (material stored as −m − 1)
-        if listed:
-            m = -m - 1
+        m, listed = voxel_material(g, vid)
         if m != m_prev:
             mu, mu_en = transport_coefficients(xs, m, e)
             m_prev = m
-        t_end = min(tx, ty, tz)
-        b = -1
-        if listed:
-            b, t_hit = mesh_hit_in_voxel(wg, i, j, k, x, y, z, u, v, w,
-                                         max(t_cur - HIT_TOL_MM, t_min), t_end)
-            if b >= 0:
-                t_end = max(t_hit, t_cur)
+        b, t_end = voxel_stretch_end(wg, listed, i, j, k, x, y, z, u, v, w, t_cur, t_min,
+                                     tx, ty, tz)
         col = g.density[vid] * max(t_end - t_cur, 0.0)
         need = tau * MM_PER_CM / mu
         if need < col:
@@ -202,10 +178,7 @@ def flight(wg, xs, e, cell, x, y, z, u, v, w, tau, track, tally, counts):
                                                track, tally, counts)
             if out != ESCAPES:
                 return out, k, x, y, z
-            t_min = HIT_TOL_MM if (x == x0 and y == y0 and z == z0) else -HIT_TOL_MM
-            cell = voxel_cell_at(wg, x, y, z) if wg.vox.density.shape[0] > 0 else -1
-            if cell < 0 and (k != SUPPORTING or wg.vox.density.shape[0] > 0):
-                cell, x, y, z = vacuum_flight(wg, x, y, z, u, v, w, max(t_min, 0.0))
+            cell, x, y, z, t_min = after_mesh(wg, k, x0, y0, z0, x, y, z, u, v, w)
         else:
             out, cell, x, y, z, tau = flight_voxel(wg, xs, e, cell - m_tets, x, y, z, u, v, w,
                                                    tau, t_min, track, tally, counts)
@@ -213,9 +186,7 @@ def flight(wg, xs, e, cell, x, y, z, u, v, w, tau, track, tally, counts):
                 return out, cell, x, y, z
             t_min = -HIT_TOL_MM
             if out == ESCAPES:  # left the grid: vacuum, maybe a mesh part beyond the CT
-                cell = -1
-                if m_tets > 0:
-                    cell, x, y, z = vacuum_flight(wg, x, y, z, u, v, w, 0.0)
+                cell, x, y, z = after_grid(wg, x, y, z, u, v, w)
         if cell < 0:
             return ESCAPES, -1, x, y, z
         counts[C_SWITCHES] += 1

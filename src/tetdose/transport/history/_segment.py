@@ -19,34 +19,25 @@ Every cell crossed with a positive column is appended to ``(bcell, bcol)`` with 
 proportion to the mass thickness in each cell. The buffer always keeps two free entries.
 """
 
-import math
-
 from tetdose._jit import kernel
-from tetdose.transport.geometry._tet import (
-    MAX_ZERO_STEPS,
-    SUPPORTING,
-    density_at,
-    exit_face,
-    next_tet,
-    relocate,
-)
+from tetdose.transport.geometry._tet import MAX_ZERO_STEPS, exit_face, next_tet
 from tetdose.transport.geometry._voxel import dda_init, dda_step
-from tetdose.transport.geometry._world import (
-    HIT_TOL_MM,
-    cell_material,
-    mesh_hit_in_voxel,
-    vacuum_flight,
-    voxel_cell_at,
-    voxel_ijk,
+from tetdose.transport.geometry._walk import (
+    MAX_SWITCHES,
+    after_grid,
+    after_mesh,
+    column_distance,
+    relocated,
+    tet_column,
+    voxel_material,
+    voxel_stretch_end,
 )
+from tetdose.transport.geometry._world import HIT_TOL_MM, cell_material, voxel_ijk
 from tetdose.transport.history._photon import (
     C_CROSSINGS,
     C_RELOCATIONS,
     C_SWITCHES,
     C_VOXEL_STEPS,
-    MAX_RELOCATIONS,
-    MAX_SWITCHES,
-    RELOCATE_NUDGE_MM,
 )
 
 #: Segment outcomes.
@@ -84,26 +75,20 @@ def segment_mesh(g, k, entry, x, y, z, u, v, w, need, mat, bcell, bcol, nb, coun
         f, t = exit_face(g, k, x, y, z, u, v, w, entry)
         if f < 0 or zero_steps > MAX_ZERO_STEPS:
             counts[C_RELOCATIONS] += 1
-            n_reloc += 1
-            k = relocate(g, x, y, z, u, v, w, RELOCATE_NUDGE_MM)
-            if k < 0 or n_reloc > MAX_RELOCATIONS:
+            k, x, y, z, n_reloc = relocated(g, x, y, z, u, v, w, n_reloc)
+            if k < 0:
                 counts[C_CROSSINGS] += crossings
                 return SEG_LOST, k, -1, x, y, z, need, nb
-            x += RELOCATE_NUDGE_MM * u
-            y += RELOCATE_NUDGE_MM * v
-            z += RELOCATE_NUDGE_MM * w
             entry = -1
             zero_steps = 0
             if g.material[k] != mat:
                 counts[C_CROSSINGS] += crossings
                 return SEG_MATERIAL, k, -1, x, y, z, need, nb
             continue
-        rho0 = max(density_at(g, k, x, y, z), 0.0)
-        a = g.density[k, 0] * u + g.density[k, 1] * v + g.density[k, 2] * w
-        col_exit = max(rho0 * t + 0.5 * a * t * t, 0.0)
+        rho0, a, col_exit = tet_column(g, k, x, y, z, u, v, w, t)
+        col_exit = max(col_exit, 0.0)
         if need < col_exit:
-            den = rho0 + math.sqrt(max(rho0 * rho0 + 2.0 * a * need, 0.0))
-            s = min(2.0 * need / den, t) if den > 0.0 else t
+            s = min(column_distance(rho0, a, need, t), t)
             nb = _append(bcell, bcol, nb, k, need)
             counts[C_CROSSINGS] += crossings
             return SEG_DONE, k, entry, x + s * u, y + s * v, z + s * w, 0.0, nb
@@ -143,10 +128,7 @@ def segment_voxel(wg, vid, x, y, z, u, v, w, need, mat, t_min, bcell, bcol, nb, 
     steps = 0
     while True:
         vid = (k * ny + j) * nx + i
-        m = g.material[vid]
-        listed = m < 0
-        if listed:
-            m = -m - 1
+        m, listed = voxel_material(g, vid)
         out = -1
         if steps > 0 and m != mat:
             out = SEG_MATERIAL
@@ -155,13 +137,8 @@ def segment_voxel(wg, vid, x, y, z, u, v, w, need, mat, t_min, bcell, bcol, nb, 
         if out >= 0:
             counts[C_VOXEL_STEPS] += steps
             return out, off + vid, x + t_cur * u, y + t_cur * v, z + t_cur * w, need, nb
-        t_end = min(tx, ty, tz)
-        b = -1
-        if listed:
-            b, t_hit = mesh_hit_in_voxel(wg, i, j, k, x, y, z, u, v, w,
-                                         max(t_cur - HIT_TOL_MM, t_min), t_end)
-            if b >= 0:
-                t_end = max(t_hit, t_cur)
+        b, t_end = voxel_stretch_end(wg, listed, i, j, k, x, y, z, u, v, w, t_cur, t_min,
+                                     tx, ty, tz)
         rho = g.density[vid]
         col = rho * max(t_end - t_cur, 0.0)
         if need < col:
@@ -193,7 +170,6 @@ def segment(wg, cell, entry, x, y, z, u, v, w, need, mat, bcell, bcol, nb, count
     that holds another material ends the segment there (SEG_MATERIAL).
     """
     m_tets = wg.tet.planes.shape[0]
-    has_vox = wg.vox.density.shape[0] > 0
     t_min = -HIT_TOL_MM
     for _ in range(MAX_SWITCHES):
         if cell < m_tets:
@@ -202,10 +178,7 @@ def segment(wg, cell, entry, x, y, z, u, v, w, need, mat, bcell, bcol, nb, count
                 wg.tet, cell, entry, x, y, z, u, v, w, need, mat, bcell, bcol, nb, counts)
             if out != _LEFT:
                 return out, k, entry, x, y, z, need, nb
-            t_min = HIT_TOL_MM if (x == x0 and y == y0 and z == z0) else -HIT_TOL_MM
-            cell = voxel_cell_at(wg, x, y, z) if has_vox else -1
-            if cell < 0 and (k != SUPPORTING or has_vox):
-                cell, x, y, z = vacuum_flight(wg, x, y, z, u, v, w, max(t_min, 0.0))
+            cell, x, y, z, t_min = after_mesh(wg, k, x0, y0, z0, x, y, z, u, v, w)
         else:
             out, cell, x, y, z, need, nb = segment_voxel(
                 wg, cell - m_tets, x, y, z, u, v, w, need, mat, t_min, bcell, bcol, nb, counts)
@@ -213,9 +186,7 @@ def segment(wg, cell, entry, x, y, z, u, v, w, need, mat, bcell, bcol, nb, count
                 return out, cell, -1, x, y, z, need, nb
             t_min = -HIT_TOL_MM
             if out == _LEFT:
-                cell = -1
-                if m_tets > 0:
-                    cell, x, y, z = vacuum_flight(wg, x, y, z, u, v, w, 0.0)
+                cell, x, y, z = after_grid(wg, x, y, z, u, v, w)
         entry = -1
         if cell < 0:
             return SEG_ESCAPED, -1, -1, x, y, z, need, nb
