@@ -15,13 +15,16 @@ for the first part; ``--no-ompmc`` skips it).
    (``time.process_time``) with one thread each (numba ``set_num_threads(1)``, ompmc
    ``threads=1``), then the wall time with two threads each. σ from :data:`BATCHES` batches.
    Printed: µs per history, σ, ε, and ε(tetdose) / ε(ompmc).
-2. **Tets and hybrid vs voxels**, and range rejection's gain (dose mode, 0.189 MeV
-   electrons, 2 MeV 100 × 100 mm² field, one thread): a 300 mm water box as 30³ voxels of
-   10 mm, as the structured mesh of the same box (30³ × 6 tets, every voxel cut in six), and as
-   the hybrid world (the mesh of the central 150 mm cube inside the voxel box: every history
-   crosses voxels → tets → voxels). Time per history (best CPU of three runs), ratio to voxels,
-   electron steps, tet crossings and voxel steps per history, and the bytes a crossing and a
-   step read (:data:`BYTES`).
+2. **Tets and hybrid vs voxels**, photons by Woodcock tracking and by the tet walk
+   (``photon_tracking``), with and without range rejection (dose mode, 0.189 MeV electrons,
+   2 MeV 100 × 100 mm² field, one thread): a 300 mm water box as 30³ voxels of 10 mm, as the
+   structured mesh of the same box (30³ × 6 tets, every voxel cut in six), and as the hybrid
+   world (the mesh of the central 150 mm cube inside the voxel box: every history crosses
+   voxels → tets → voxels). CPU per history of the transport (the batches) and of the whole
+   ``simulate`` (plus the one-off world build, pilot run and result), best of three, ratios to
+   voxels; the world build [s]; electron steps, tet crossings, Woodcock steps (tentative
+   collisions) and voxel steps per history; the point-location grid's size; the bytes a
+   crossing and a step read (:data:`BYTES`).
 """
 
 from __future__ import annotations
@@ -30,13 +33,15 @@ import argparse
 import os
 import sys
 import time
+from dataclasses import replace
 
 import numba
 import numpy as np
 
 from tetdose.core.image import Image, ImageGrid
 from tetdose.core.mesh import TetMesh
-from tetdose.transport import PhotonSource, Plan, TransportSettings, World, simulate
+from tetdose.transport import PhotonSource, Plan, TransportSettings, World, as_world, simulate
+from tetdose.transport.run.job import build_job, cross_sections, run_batches
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from bench_transport import box  # noqa: E402
@@ -145,6 +150,31 @@ def water_worlds(n: int = 30, size_mm: float = 300.0):  # noqa: ANN201
     return voxels, mesh, World(mesh=inner, density=voxels)
 
 
+def transport_times(geom, pl: Plan, st: TransportSettings):  # noqa: ANN001, ANN201
+    """(world build [s], transport [µs/photon], simulate [µs/photon], record): CPU seconds, best
+    of three. The build (kernel arrays, boundary lists, point-location grid) is done once per
+    world; the transport is every batch of the run (``run_batches``); simulate is both plus the
+    pilot run and the result."""
+    world = as_world(geom, None)
+    n = st.n_histories
+    simulate(world, pl, replace(st, n_histories=200, n_batches=2), progress=False)  # compile
+    build = run = total = np.inf
+    rec: dict = {}
+    for _ in range(3):
+        t0 = time.process_time()
+        job, _ = build_job(world, pl, st)
+        build = min(build, time.process_time() - t0)
+        xs = cross_sections(job, st)
+        t0 = time.process_time()
+        run_batches(job, xs, st, 0, st.n_batches)
+        run = min(run, time.process_time() - t0)
+        t0 = time.process_time()
+        r = simulate(world, pl, st, progress=False)
+        total = min(total, time.process_time() - t0)
+        rec = r.record()
+    return build, run / n * 1e6, total / n * 1e6, rec
+
+
 def worlds(args: argparse.Namespace) -> None:
     numba.set_num_threads(1)
     voxels, mesh, hybrid = water_worlds()
@@ -152,30 +182,36 @@ def worlds(args: argparse.Namespace) -> None:
                             field_mm=[100.0, 100.0]),))
     n = int(args.world_histories)
     print(f"\n2. dose mode per history, 2 MeV 100 x 100 mm2, 300 mm water box, 1 thread, {n} "
-          "histories (best CPU of 3)")
-    print(f"{'world':28s} {'µs/hist':>8s} {'× voxels':>8s} {'e steps':>8s} {'tet cross':>9s} "
-          f"{'vox steps':>9s}")
-    base = None
-    for name, geom, rr in (("voxels 30^3 (10 mm)", voxels, 0.0), ("tets 30^3 x 6", mesh, 0.0),
-                           ("hybrid (15^3 x 6 tets inside)", hybrid, 0.0),
-                           ("voxels, range rejection 2 MeV", voxels, 2.0),
-                           ("tets, range rejection 2 MeV", mesh, 2.0),
-                           ("hybrid, range rejection 2 MeV", hybrid, 2.0)):
-        for cut in (0.189,):
-            st = TransportSettings(n, 10, 1, physics="dose", electron_cutoff_mev=cut,
-                                   range_rejection_mev=rr)
-            simulate(geom, pl, TransportSettings(200, 2, physics="dose", electron_cutoff_mev=cut),
-                     progress=False)
-            best, rec = np.inf, {}
-            for _ in range(3):
-                t0 = time.process_time()
-                r = simulate(geom, pl, st, progress=False)
-                best = min(best, time.process_time() - t0)
-                rec = r.record()
-            us = best / n * 1e6
-            base = base or us
-            print(f"{name:28s} {us:8.1f} {us / base:8.2f} {rec['electron_steps'] / n:8.1f} "
-                  f"{rec['tet_crossings'] / n:9.1f} {rec['voxel_steps'] / n:9.1f}", flush=True)
+          "histories (CPU, best of 3): transport = the batches, simulate = + world build, "
+          "pilot, result")
+    print(f"{'world':24s} {'photons':9s} {'rr':>3s} {'build s':>7s} {'µs/hist':>8s} "
+          f"{'× vox':>6s} {'simulate':>8s} {'× vox':>6s} {'e steps':>7s} {'tet cross':>9s} "
+          f"{'wood st':>7s} {'vox steps':>9s}")
+    base: dict[float, tuple[float, float]] = {}
+    for rr in (0.0, 2.0):
+        for name, geom in (("voxels 30^3 (10 mm)", voxels), ("tets 30^3 x 6", mesh),
+                           ("hybrid (15^3 x 6 inside)", hybrid)):
+            for tracking in ("woodcock", "walk"):
+                if name.startswith("voxels") and tracking == "walk":
+                    continue
+                st = TransportSettings(n, 10, 1, physics="dose", electron_cutoff_mev=0.189,
+                                       range_rejection_mev=rr, photon_tracking=tracking)
+                build, us, us_sim, rec = transport_times(geom, pl, st)
+                b_run, b_sim = base.setdefault(rr, (us, us_sim))
+                label = "-" if name.startswith("voxels") else tracking
+                print(f"{name:24s} {label:9s} {rr:3g} {build:7.2f} {us:8.2f} {us / b_run:6.2f} "
+                      f"{us_sim:8.1f} {us_sim / b_sim:6.2f} {rec['electron_steps'] / n:7.1f} "
+                      f"{rec['tet_crossings'] / n:9.1f} {rec['woodcock_steps'] / n:7.2f} "
+                      f"{rec['voxel_steps'] / n:9.1f}", flush=True)
+    g = World(mesh=mesh)
+    job, _ = build_job(g, pl, TransportSettings(10, 2))
+    t = job.geom.tet
+    per_cell = np.diff(t.loc_start)
+    grid_bytes = t.loc_start.nbytes + t.loc_items.nbytes
+    print(f"point-location grid of the {mesh.n_tets} tets: {'x'.join(map(str, t.loc_n))} cells, "
+          f"{per_cell.mean():.1f} tets listed per cell (max {per_cell.max()}), "
+          f"{grid_bytes / 2**20:.1f} MiB ({grid_bytes / mesh.n_tets:.0f} B per tet; planes "
+          f"{t.planes.nbytes / mesh.n_tets:.0f} B per tet)")
     from tetdose.transport.physics.electron_xs import build_electron_tables
 
     et = build_electron_tables(["water"], cutoff_mev=0.189, photon_cutoff_mev=0.01, e_max_mev=25.0)

@@ -1,7 +1,10 @@
 """njit coupled photon–electron histories (dose mode): photons set electrons in motion.
 
-Photon flights are those of kerma mode (:func:`tetdose.transport.history._photon.flight`, exact
-free paths in linear density, no track-length tally); the interaction is chosen from the same
+Photon flights through the mesh are Woodcock (delta) tracked by default (a majorant, point
+location, no tet walk: :mod:`tetdose.transport.history._delta`); with
+``photon_tracking="walk"`` they are those of kerma mode
+(:func:`tetdose.transport.history._photon.flight`, exact free paths in linear density, no
+track-length tally). Both are exact. The interaction is chosen from the same
 branching fractions as :func:`tetdose.transport.physics._photon.interact`, but the charged
 particles it releases are transported instead of depositing their energy where they are born
 (:mod:`tetdose.transport.physics._photon_electrons` gives their energies and directions):
