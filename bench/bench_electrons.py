@@ -37,10 +37,16 @@ from dataclasses import replace
 
 import numba
 import numpy as np
+from numba import njit
 
+from tetdose._constants import MM_PER_CM
 from tetdose.core.image import Image, ImageGrid
 from tetdose.core.mesh import TetMesh
 from tetdose.transport import PhotonSource, Plan, TransportSettings, World, as_world, simulate
+from tetdose.transport.geometry import tets as tets_module
+from tetdose.transport.geometry._tet import locate_point, walk_to
+from tetdose.transport.geometry.tets import LOC_CELLS_PER_TET, mesh_geometry
+from tetdose.transport.run.coupled import photon_majorant
 from tetdose.transport.run.job import build_job, cross_sections, run_batches
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
@@ -175,6 +181,63 @@ def transport_times(geom, pl: Plan, st: TransportSettings):  # noqa: ANN001, ANN
     return build, run / n * 1e6, total / n * 1e6, rec
 
 
+@njit(cache=True)
+def _locate_all(g, starts, ends, ks, by_walk):  # noqa: ANN001, ANN202
+    """Tets holding ``ends`` (sum of ids, a checksum): by the point-location grid, or by walking
+    from the tet ``ks`` holding ``starts`` along the segment (the alternative to the grid)."""
+    total = 0
+    for n in range(len(ends)):
+        if by_walk:
+            dx, dy, dz = ends[n, 0] - starts[n, 0], ends[n, 1] - starts[n, 1], ends[n, 2] - starts[n, 2]
+            length = np.sqrt(dx * dx + dy * dy + dz * dz)
+            k, _ = walk_to(g, ks[n], starts[n, 0], starts[n, 1], starts[n, 2], dx / length,
+                           dy / length, dz / length, length)
+        else:
+            k = locate_point(g, ends[n, 0], ends[n, 1], ends[n, 2])
+        total += k
+    return total
+
+
+def point_location(mesh: TetMesh, mean_mm: float, n: int = 200_000) -> None:
+    """ns per point location in ``mesh`` of the end of a segment of exponential length (mean
+    ``mean_mm``, a photon's mean free path under the majorant) from a random point inside: the
+    grid vs the walk from the start's tet, for each grid size."""
+    rng = np.random.default_rng(1)
+    lo, hi = mesh.points_mm.min(axis=0), mesh.points_mm.max(axis=0)
+    starts = rng.uniform(lo, hi, (n, 3))
+    d = rng.normal(size=(n, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    ends = starts + rng.exponential(mean_mm, (n, 1)) * d
+    inside = np.all((ends > lo) & (ends < hi), axis=1)  # the box is convex: the walk stays in
+    starts, ends = starts[inside], ends[inside]
+    for cells_per_tet in (0.5, 1.0, 2.0, 4.0):
+        tets_module.LOC_CELLS_PER_TET = cells_per_tet
+        g = mesh_geometry(mesh, np.ones(mesh.n_points), np.zeros(mesh.n_tets, np.intp))
+        ks = _start_tets(g, starts)
+        res = {}
+        for by_walk in (False, True):
+            if by_walk and cells_per_tet != 1.0:
+                continue
+            _locate_all(g, starts[:10], ends[:10], ks[:10], by_walk)
+            t0 = time.perf_counter()
+            _locate_all(g, starts, ends, ks, by_walk)
+            res["walk" if by_walk else "grid"] = (time.perf_counter() - t0) / len(ends) * 1e9
+        mib = (g.loc_start.nbytes + g.loc_items.nbytes) / 2**20
+        print(f"  {cells_per_tet:3g} cells/tet ({'x'.join(map(str, g.loc_n))}): grid "
+              f"{res['grid']:6.0f} ns, {np.diff(g.loc_start).mean():4.1f} tets/cell, "
+              f"{mib:5.1f} MiB" + (f"; walk from the start's tet {res['walk']:6.0f} ns"
+                                   if "walk" in res else ""), flush=True)
+    tets_module.LOC_CELLS_PER_TET = LOC_CELLS_PER_TET
+
+
+@njit(cache=True)
+def _start_tets(g, starts):  # noqa: ANN001, ANN202
+    out = np.empty(len(starts), dtype=np.intp)
+    for n in range(len(starts)):
+        out[n] = locate_point(g, starts[n, 0], starts[n, 1], starts[n, 2])
+    return out
+
+
 def worlds(args: argparse.Namespace) -> None:
     numba.set_num_threads(1)
     voxels, mesh, hybrid = water_worlds()
@@ -212,6 +275,13 @@ def worlds(args: argparse.Namespace) -> None:
           f"{per_cell.mean():.1f} tets listed per cell (max {per_cell.max()}), "
           f"{grid_bytes / 2**20:.1f} MiB ({grid_bytes / mesh.n_tets:.0f} B per tet; planes "
           f"{t.planes.nbytes / mesh.n_tets:.0f} B per tet)")
+    xs = cross_sections(job, TransportSettings(10, 2))
+    hat = photon_majorant(xs, t.rho_max)
+    x = (np.log(2.0) - xs.ln_e_min) / xs.d_ln_e
+    i = int(x)
+    mfp_mm = MM_PER_CM / np.exp(hat[i] + (x - i) * (hat[i + 1] - hat[i]))
+    print(f"point location at the end of a 2 MeV majorant free path ({mfp_mm:.0f} mm), 1 thread:")
+    point_location(mesh, mfp_mm)
     from tetdose.transport.physics.electron_xs import build_electron_tables
 
     et = build_electron_tables(["water"], cutoff_mev=0.189, photon_cutoff_mev=0.01, e_max_mev=25.0)

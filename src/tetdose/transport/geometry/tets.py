@@ -29,7 +29,7 @@ from tetdose.transport.geometry._tet import SUPPORTING, TetGeometry, list_tets_p
 _MORTON_BITS = 21
 #: Point-location grid: cells per tet (sets the cell size), cap per axis, and the growth of the
 #: tets' boxes and face planes when listing them per cell [mm] (≥ the location tolerance).
-LOC_CELLS_PER_TET = 2.0
+LOC_CELLS_PER_TET = 1.0
 LOC_MAX_CELLS_PER_AXIS = 512
 LOC_PAD_MM = 1e-6
 
