@@ -23,6 +23,11 @@ by a uniform grid over the mesh's bounding box traversed with Amanatides–Woo (
 :mod:`tetdose.transport.geometry._voxel`). The first boundary hit tells whether the source point
 is outside (hit an entering face: start there) or inside (hit a leaving face: walk back along
 the ray to the source point).
+
+Point location (the photons' Woodcock flights in dose mode,
+:mod:`tetdose.transport.history._delta`): a second uniform grid over the mesh's bounding box
+lists per cell the tets that may meet it (:func:`list_tets_per_cell`, CSR, about one cell per
+tet); :func:`locate_point` tests those candidates' face planes. Pure geometry, no walk.
 """
 
 from typing import NamedTuple
