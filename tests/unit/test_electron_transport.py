@@ -5,6 +5,7 @@ majorant, and settings/plan validation."""
 
 from __future__ import annotations
 
+import argparse
 import math
 
 import numpy as np
@@ -12,6 +13,7 @@ import pytest
 from numba import njit
 
 from tetdose._random import next_uniform, seed_for
+from tetdose.cli._dose import add_run_args, run_settings
 from tetdose.core.mesh import TetMesh
 from tetdose.errors import PlanError
 from tetdose.plan.model import Plan
@@ -25,7 +27,12 @@ from tetdose.transport.history._segment import (
     SEG_MATERIAL,
     segment,
 )
-from tetdose.transport.physics._photon import sample_klein_nishina
+from tetdose.transport.physics._photon import (
+    grid_position,
+    majorant_at,
+    sample_klein_nishina,
+    transport_coefficients,
+)
 from tetdose.transport.physics._photon_electrons import (
     ELECTRON_MASS_MEV,
     compton_electron_direction,
@@ -33,7 +40,8 @@ from tetdose.transport.physics._photon_electrons import (
     sample_sauter_cos,
 )
 from tetdose.transport.physics.electron_xs import build_electron_tables
-from tetdose.transport.run.coupled import hard_majorant
+from tetdose.transport.physics.xs import build_cross_sections
+from tetdose.transport.run.coupled import hard_majorant, photon_majorant
 from tetdose.transport.run.settings import TransportSettings
 from tetdose.transport.sources._volume import VolumeArrays, sample_volume
 
@@ -323,6 +331,7 @@ def test_majorant_bounds_the_hard_cross_section_over_a_step():
     ({"physics": "dose", "estimator": "track_length"}, "track-length"),
     ({"electron_cutoff_mev": 0.0}, "electron_cutoff_mev"),
     ({"max_energy_loss_fraction": 0.9}, "max_energy_loss_fraction"),
+    ({"photon_tracking": "delta"}, "photon_tracking"),
 ])
 def test_bad_electron_settings_raise_plan_error(kwargs, match):
     with pytest.raises(PlanError, match=match):
@@ -333,6 +342,30 @@ def test_default_settings_are_dose_with_analog_scoring_and_kerma_keeps_track_len
     assert TransportSettings(100).physics == "dose"
     assert TransportSettings(100).estimator == "analog"
     assert TransportSettings(100, physics="kerma").estimator == "track_length"
+    assert TransportSettings(100).photon_tracking == "woodcock"
+
+
+def test_cli_photon_tracking_reaches_the_settings():
+    parser = argparse.ArgumentParser()
+    add_run_args(parser)
+    for argv, tracking in (([], "woodcock"), (["--photon-tracking", "walk"], "walk")):
+        args = parser.parse_args(["--histories", "100", *argv])
+        assert run_settings(args).photon_tracking == tracking
+
+
+def test_photon_majorant_bounds_every_material_between_the_nodes():
+    """μ̂(E) ≥ (μ/ρ)_m(E)·ρ_max,m for every material at energies between the table's nodes (as
+    the kernels interpolate), within 2 % of the largest of them; a material of density 0 (none
+    in the box) is left out."""
+    xs = build_cross_sections(["water", "lung", "cortical_bone", "adipose"])
+    rho = np.array([1.1, 0.4, 1.9, 0.0])
+    hat = photon_majorant(xs, rho)
+    np.testing.assert_array_equal(hat, photon_majorant(xs, np.array([1.1, 0.4, 1.9])))
+    for e in np.geomspace(0.0105, 19.9, 1999):
+        i, f = grid_position(xs, e)
+        mu_hat = majorant_at(hat, i, f)
+        mu = max(transport_coefficients(xs, m, e)[0] * rho[m] for m in range(3))
+        assert mu <= mu_hat <= 1.02 * mu, e
 
 
 def test_plan_toml_particles_and_volume_sources(tmp_path):

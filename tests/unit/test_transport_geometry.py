@@ -17,7 +17,7 @@ from tetdose._constants import MM_PER_CM
 from tetdose.core.image import Image, ImageGrid
 from tetdose.core.mesh import TetMesh
 from tetdose.transport import mesh_geometry, morton_order
-from tetdose.transport.geometry._tet import enter_mesh, exit_face
+from tetdose.transport.geometry._tet import enter_mesh, exit_face, locate_point
 from tetdose.transport.geometry._voxel import VoxelGeometry
 from tetdose.transport.geometry._world import start_cell
 from tetdose.transport.geometry.world import voxel_world
@@ -319,3 +319,67 @@ def test_every_voxel_a_boundary_triangle_crosses_lists_it():
             assert wg.vox.material[(k * n[1] + j) * n[0] + i] < 0  # flagged: −m − 1
     listed = np.diff(wg.tri_start) > 0
     assert (wg.vox.material < 0).sum() == listed.sum()
+
+
+@pytest.fixture(scope="module")
+def organ_mesh():
+    """An unstructured mesh (the organ mesher's liver of the small phantom), in kernel order."""
+    from tetdose.phantoms import make_phantom
+
+    mesh = make_phantom("liver", seed=3, size="small", mesher="organ").mesh
+    order = morton_order(mesh.centroids_mm)
+    g = mesh_geometry(mesh, np.ones(mesh.n_points), np.zeros(mesh.n_tets, np.intp), order)
+    return mesh, order, g
+
+
+def _barycentric(mesh, k, p):
+    v = mesh.points_mm[mesh.tets[k]]
+    return np.linalg.solve(np.vstack([v.T, np.ones(4)]), np.append(p, 1.0))
+
+
+def test_point_location_finds_the_tet_holding_each_point(organ_mesh):
+    """Random points in the bounding box and near boundary faces (1e-4 mm in and out): a located
+    tet holds the point (barycentric coordinates ≥ 0), a point reported outside (−1) lies in no
+    tet (brute force over every tet, numpy)."""
+    mesh, order, g = organ_mesh
+    rng = np.random.default_rng(11)
+    lo, hi = mesh.points_mm.min(axis=0), mesh.points_mm.max(axis=0)
+    pts = [rng.uniform(lo - 1.0, hi + 1.0, (1500, 3))]
+    faces = mesh.boundary_faces[rng.integers(0, len(mesh.boundary_faces), 300)]
+    tri = mesh.points_mm[faces]
+    centre = tri.mean(axis=1)
+    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    for side in (-1e-4, 1e-4):
+        pts.append(centre + side * normal)
+    pts = np.concatenate(pts)
+    v = mesh.points_mm[mesh.tets]  # (M, 4, 3)
+    inv = np.linalg.inv(np.concatenate([v.transpose(0, 2, 1), np.ones((mesh.n_tets, 1, 4))],
+                                       axis=1))
+    found = {True: 0, False: 0}
+    for p in pts:
+        k = locate_point(g, *p)
+        if k >= 0:
+            assert _barycentric(mesh, order[k], p).min() > -1e-9
+        else:
+            bary = inv @ np.append(p, 1.0)
+            assert np.all(bary.min(axis=1) < 1e-12), p
+        found[k >= 0] += 1
+    assert min(found.values()) > 300  # both kinds of point were tested
+
+
+def test_point_location_grid_lists_every_tet_that_meets_a_cell(organ_mesh):
+    """Each tet is listed in the cell of each of its vertices, of its centroid and of random
+    points inside it (the cells its points fall in)."""
+    mesh, order, g = organ_mesh
+    rng = np.random.default_rng(12)
+    pts = mesh.points_mm[mesh.tets[order]]  # kernel order
+    bary = rng.dirichlet(np.ones(4), (len(pts), 3))
+    inside = np.einsum("mnv,mva->mna", bary, pts)
+    for p in (pts, inside, pts.mean(axis=1, keepdims=True)):
+        idx = np.floor((p - g.loc_lo) / g.loc_cell).astype(int)
+        assert np.all((idx >= 0) & (idx < g.loc_n))
+        cell = (idx[..., 2] * g.loc_n[1] + idx[..., 1]) * g.loc_n[0] + idx[..., 0]
+        for k in range(len(pts)):
+            for c in cell[k]:
+                assert k in g.loc_items[g.loc_start[c]:g.loc_start[c + 1]]

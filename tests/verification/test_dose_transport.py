@@ -74,6 +74,7 @@ def test_dose_mode_ledger_closes_and_nothing_is_lost_on_the_adversarial_mesh():
     assert rec["electron_cutoff_mev"] == 0.05 and rec["photon_cutoff_mev"] == 0.01
     assert rec["electron_steps"] > rec["electron_tracks"] > 1000
     assert res.ledger["electron_escaped_mev"] > 0.0  # the 6 MeV electrons leave the slab
+    assert rec["photon_tracking"] == "woodcock" and rec["woodcock_steps"] > 1000
 
 
 def test_dose_mode_on_the_hybrid_world_along_voxel_edges_and_mesh_faces():
@@ -96,6 +97,7 @@ def test_dose_mode_on_the_hybrid_world_along_voxel_edges_and_mesh_faces():
     rec = res.record()
     assert rec["mesh_voxel_switches"] > 1000
     assert rec["relocations"] < 1e-3 * 40_000
+    assert rec["woodcock_steps"] > 1000  # the photons cross the mesh by Woodcock tracking
 
 
 def test_dose_mode_same_seed_same_bits_with_one_or_two_threads(tmp_path):

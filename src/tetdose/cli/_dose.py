@@ -30,6 +30,7 @@ from tetdose.transport.run.settings import (
     ELECTRON_CUTOFF_MEV,
     ESTIMATORS,
     PHOTON_SPLITTING,
+    PHOTON_TRACKING,
     PHYSICS,
     RANGE_REJECTION_MEV,
 )
@@ -115,6 +116,9 @@ def add_run_args(parser: argparse.ArgumentParser, per: str = "") -> None:
                         help="dose mode: an electron up to this energy that cannot leave its "
                         "voxel or tet deposits there at once (0 = off; default "
                         f"{RANGE_REJECTION_MEV:g})")
+    parser.add_argument("--photon-tracking", choices=PHOTON_TRACKING, default="woodcock",
+                        help="dose mode: photons cross the mesh by Woodcock (delta) tracking "
+                        "(default) or walk it tet by tet (same dose within statistics)")
 
     parser.add_argument("--target-uncertainty", type=relative_uncertainty, metavar="PCT",
                         help="stop once the mean dose in --target-region has this relative "
@@ -150,7 +154,8 @@ def run_settings(args: argparse.Namespace, **kw: Any) -> Any:  # noqa: ANN401
                              target_region=args.target_region, physics=args.physics,
                              electron_cutoff_mev=args.electron_cutoff_mev,
                              photon_splitting=args.photon_splitting,
-                             range_rejection_mev=args.range_rejection_mev, **kw)
+                             range_rejection_mev=args.range_rejection_mev,
+                             photon_tracking=args.photon_tracking, **kw)
 
 
 def add_dask_arg(parser: argparse.ArgumentParser) -> None:

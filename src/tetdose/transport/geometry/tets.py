@@ -24,9 +24,14 @@ import numpy as np
 from tetdose._typing import FloatArray, IntArray
 from tetdose.core.mesh import FACE_VERTICES, TetMesh
 from tetdose.errors import MeshError
-from tetdose.transport.geometry._tet import SUPPORTING, TetGeometry
+from tetdose.transport.geometry._tet import SUPPORTING, TetGeometry, list_tets_per_cell
 
 _MORTON_BITS = 21
+#: Point-location grid: cells per tet (sets the cell size), cap per axis, and the growth of the
+#: tets' boxes and face planes when listing them per cell [mm] (≥ the location tolerance).
+LOC_CELLS_PER_TET = 1.0
+LOC_MAX_CELLS_PER_AXIS = 512
+LOC_PAD_MM = 1e-6
 
 
 def morton_order(points_mm: FloatArray) -> IntArray:
@@ -69,6 +74,34 @@ def _boundary_grid(points: FloatArray, tri: IntArray) -> tuple[FloatArray, ...]:
     order = np.argsort(c, kind="stable")
     start = np.searchsorted(c[order], np.arange(int(np.prod(n)) + 1)).astype(np.intp)
     return lo, cell, n, start, f[order].astype(np.intp)
+
+
+def location_grid(points: FloatArray, tets: IntArray, planes: FloatArray
+                  ) -> tuple[FloatArray, FloatArray, IntArray, IntArray, IntArray]:
+    """Point-location grid of a mesh: (lo, cell, n, start, items) over the mesh's bounding box
+    grown by 1e-6 of its extent (a point on the box lies outside the mesh), about
+    :data:`LOC_CELLS_PER_TET` cells per tet, each listing the tets that may meet it
+    (:func:`~._tet.list_tets_per_cell`). Memory: 8·(L + 1) + 4·Σ listed bytes."""
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    pad = 1e-6 * max(float(np.max(hi - lo)), 1.0)
+    lo, hi = lo - pad, hi + pad
+    ext = hi - lo
+    h = (float(np.prod(ext)) / max(len(tets) * LOC_CELLS_PER_TET, 1.0)) ** (1.0 / 3.0)
+    n = np.clip(np.ceil(ext / h), 1, LOC_MAX_CELLS_PER_AXIS).astype(np.intp)
+    cell = ext / n
+    p = points[tets]
+    start, items = list_tets_per_cell(planes, p.min(axis=1), p.max(axis=1), lo, cell, n,
+                                      LOC_PAD_MM)
+    return lo, cell, n, start, items
+
+
+def material_density_max(material: IntArray, density_g_cm3: FloatArray,
+                         n_materials: int) -> FloatArray:
+    """(n_materials,) largest of ``density_g_cm3`` [g/cm³] per material index (0 if none)."""
+    out = np.zeros(n_materials)
+    if len(material):
+        np.maximum.at(out, np.asarray(material, dtype=np.intp), density_g_cm3)
+    return out
 
 
 def supporting_faces(points_mm: FloatArray, planes: FloatArray) -> np.ndarray:
@@ -132,9 +165,13 @@ def mesh_geometry(mesh: TetMesh, density_g_cm3: FloatArray, material: IntArray,
     bnd_tri = np.stack([corner, pts[tri[:, 1]] - corner, pts[tri[:, 2]] - corner,
                         planes[bk, bf, :3]], axis=1)
     c_ = np.ascontiguousarray
-    return TetGeometry(c_(planes), c_(link, dtype=np.intp), c_(density),
-                       c_(np.asarray(material)[order], dtype=np.intp), c_(bk, dtype=np.intp),
-                       c_(bnd_tri), *_boundary_grid(pts, tri))
+    material = c_(np.asarray(material)[order], dtype=np.intp)
+    # linear density: its largest value in a tet is at a vertex
+    rho_max = material_density_max(material, rho[tets].max(axis=1),
+                                   int(material.max()) + 1 if len(material) else 0)
+    return TetGeometry(c_(planes), c_(link, dtype=np.intp), c_(density), material,
+                       c_(bk, dtype=np.intp), c_(bnd_tri), *_boundary_grid(pts, tri),
+                       *location_grid(pts, tets, planes), rho_max)
 
 
 def empty_mesh_geometry() -> TetGeometry:
@@ -143,4 +180,5 @@ def empty_mesh_geometry() -> TetGeometry:
     return TetGeometry(np.zeros((0, 4, 4)), np.zeros((0, 4), np.intp), np.zeros((0, 4)),
                        np.zeros(0, np.intp), np.zeros(0, np.intp), np.zeros((0, 4, 3)), z3,
                        np.ones(3), np.ones(3, np.intp), np.zeros(2, np.intp),
-                       np.zeros(0, np.intp))
+                       np.zeros(0, np.intp), z3.copy(), np.ones(3), np.ones(3, np.intp),
+                       np.zeros(2, np.intp), np.zeros(0, np.int32), np.zeros(0))

@@ -29,9 +29,15 @@ from tetdose.core.image import Image, ImageGrid
 from tetdose.core.mass import mass_g, pair_mass_g
 from tetdose.core.mesh import TetMesh
 from tetdose.errors import ImageError, MeshError, PlanError
+from tetdose.transport.geometry._tet import TetGeometry
 from tetdose.transport.geometry._voxel import VoxelGeometry
 from tetdose.transport.geometry._world import LIST_PAD_MM, WorldGeometry, list_triangles_per_voxel
-from tetdose.transport.geometry.tets import empty_mesh_geometry, mesh_geometry, morton_order
+from tetdose.transport.geometry.tets import (
+    empty_mesh_geometry,
+    material_density_max,
+    mesh_geometry,
+    morton_order,
+)
 
 #: (mean density per cell [g/cm³], region label per cell or None) → (material index per cell,
 #: material names).
@@ -160,6 +166,25 @@ def _flag_listed_voxels(material: IntArray, tri_lo: IntArray, tri_n: IntArray,
     material[vid] = -material[vid] - 1
 
 
+def _with_box_voxels(tet: TetGeometry, vox: VoxelGeometry, material: IntArray,
+                     n_materials: int) -> TetGeometry:
+    """``tet`` with ``rho_max`` [g/cm³] per material over the mesh's vertices and the voxels
+    (material ``material``, unflagged) meeting the point-location box: there, outside the mesh,
+    the photon's Woodcock flight sees the voxels (:mod:`tetdose.transport.history._delta`)."""
+    box_lo = tet.loc_lo
+    box_hi = tet.loc_lo + tet.loc_n * tet.loc_cell
+    i0 = np.clip(np.floor((box_lo - vox.lo) / vox.cell).astype(np.intp), 0, vox.n - 1)
+    i1 = np.clip(np.floor((box_hi - vox.lo) / vox.cell).astype(np.intp), 0, vox.n - 1)
+    inside = (slice(i0[2], i1[2] + 1), slice(i0[1], i1[1] + 1), slice(i0[0], i1[0] + 1))
+    shape = tuple(vox.n[::-1])
+    rho = np.zeros(n_materials)
+    rho[:len(tet.rho_max)] = tet.rho_max
+    rho = np.maximum(rho, material_density_max(material.reshape(shape)[inside].ravel(),
+                                               vox.density.reshape(shape)[inside].ravel(),
+                                               n_materials))
+    return tet._replace(rho_max=rho)
+
+
 def _warn_if_outside(mesh: TetMesh, on_grid: MeshOnGrid, tet_mass_g: FloatArray) -> None:
     """Warn when more than :data:`OUTSIDE_WARN_FRACTION` of the mesh's mass lies outside the CT
     (there the mesh is surrounded by vacuum, not tissue)."""
@@ -208,6 +233,7 @@ def world_arrays(world: World, material_of: MaterialRule) -> WorldArrays:
         if mesh is not None:
             on_grid, covered = _on_grid(mesh, grid, rho_p)
             lists = list_triangles_per_voxel(tet.bnd_tri, vox.lo, vox.cell, vox.n, LIST_PAD_MM)
+            tet = _with_box_voxels(tet, vox, material[m_tets:], len(names))
             _flag_listed_voxels(vox.material, *lists, vox.n)
         uncovered = grid.voxel_volume_mm3 - covered
         uncovered[uncovered < COVERED_TOL_REL * grid.voxel_volume_mm3] = 0.0  # round-off

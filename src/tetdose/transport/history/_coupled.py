@@ -1,7 +1,10 @@
 """njit coupled photon–electron histories (dose mode): photons set electrons in motion.
 
-Photon flights are those of kerma mode (:func:`tetdose.transport.history._photon.flight`, exact
-free paths in linear density, no track-length tally); the interaction is chosen from the same
+Photon flights through the mesh are Woodcock (delta) tracked by default (a majorant, point
+location, no tet walk: :mod:`tetdose.transport.history._delta`); with
+``photon_tracking="walk"`` they are those of kerma mode
+(:func:`tetdose.transport.history._photon.flight`, exact free paths in linear density, no
+track-length tally). Both are exact. The interaction is chosen from the same
 branching fractions as :func:`tetdose.transport.physics._photon.interact`, but the charged
 particles it releases are transported instead of depositing their energy where they are born
 (:mod:`tetdose.transport.physics._photon_electrons` gives their energies and directions):
@@ -57,6 +60,7 @@ from tetdose._jit import kernel
 from tetdose._random import next_uniform
 from tetdose.transport.geometry._tet import density_at
 from tetdose.transport.geometry._world import cell_material, voxel_ijk
+from tetdose.transport.history._delta import flight_delta
 from tetdose.transport.history._electron import (
     C_E_TRACKS,
     ELECTRON,
@@ -182,18 +186,26 @@ def photon_interaction(xs, m, cell, e, u, v, w, state, e_cut, wt, tally, ledger,
 
 
 @kernel
-def photon_track(wg, xs, e, cell, x, y, z, u, v, w, state, p_cut, e_cut, wt, tally, ledger,
-                 counts, stack, n_stack):
+def photon_track(wg, xs, ln_mu_hat, e, cell, x, y, z, u, v, w, state, p_cut, e_cut, wt, tally,
+                 ledger, counts, stack, n_stack):
     """Follow one photon of weight ``wt`` to its absorption, escape or cut-off; secondaries go on
-    the stack. Returns (state, n_stack)."""
+    the stack. Flights through the mesh are Woodcock-tracked with the majorant table
+    ``ln_mu_hat`` (:mod:`tetdose.transport.history._delta`), or walked tet by tet when it is
+    empty. Returns (state, n_stack)."""
+    delta = ln_mu_hat.shape[0] > 0
     while True:
         if e < p_cut:
             ledger[L_CUTOFF] += e * wt
             tally[cell] += e * wt
             return state, n_stack
         state, xi = next_uniform(state)
-        out, cell2, x, y, z = flight(wg, xs, e, cell, x, y, z, u, v, w, -math.log(1.0 - xi),
-                                     False, tally, counts)
+        if delta:
+            state, out, cell2, x, y, z = flight_delta(wg, xs, ln_mu_hat, e, cell, x, y, z, u, v,
+                                                      w, -math.log(1.0 - xi), state, tally,
+                                                      counts)
+        else:
+            out, cell2, x, y, z = flight(wg, xs, e, cell, x, y, z, u, v, w,
+                                         -math.log(1.0 - xi), False, tally, counts)
         if out == ESCAPES:
             ledger[L_ESCAPED] += e * wt
             return state, n_stack
@@ -238,16 +250,18 @@ def wall_column(wg, cell, x, y, z):
 
 
 @kernel
-def coupled_history(wg, xs, et, sig_hat, sp, e, cell, x, y, z, u, v, w, state, p_cut, f_loss,
-                    wt, rr_mev, tally, ledger, counts, stack, bcell, bcol):
+def coupled_history(wg, xs, ln_mu_hat, et, sig_hat, sp, e, cell, x, y, z, u, v, w, state,
+                    p_cut, f_loss, wt, rr_mev, tally, ledger, counts, stack, bcell, bcol):
     """Follow one source particle (species ``sp``, energy [MeV], already in global ``cell``,
     statistical weight ``wt``: 1, or 1/n_split for a split photon) and every secondary to the end;
-    electrons of at most ``rr_mev`` [MeV] are range-rejected (module docstring; 0: never).
-    Returns the RNG state."""
+    electrons of at most ``rr_mev`` [MeV] are range-rejected (module docstring; 0: never);
+    photons are Woodcock-tracked through the mesh with the majorant ``ln_mu_hat`` (empty: they
+    walk it). Returns the RNG state."""
     n_stack = 0
     while True:
         if sp == PHOTON:
-            state, n_stack = photon_track(wg, xs, e, cell, x, y, z, u, v, w, state, p_cut,
+            state, n_stack = photon_track(wg, xs, ln_mu_hat, e, cell, x, y, z, u, v, w, state,
+                                          p_cut,
                                           et.cutoff_mev, wt, tally, ledger, counts, stack,
                                           n_stack)
         elif (sp == ELECTRON and e <= rr_mev

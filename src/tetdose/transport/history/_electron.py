@@ -78,7 +78,9 @@ ELECTRON_MASS_MEV = 0.51099895
 L_E_DEPOSITED, L_E_ESCAPED, L_E_CUTOFF, L_ROULETTE = 5, 6, 7, 8
 N_LEDGER_DOSE = 9
 C_E_STEPS, C_E_TRACKS = 7, 8
-N_COUNTS_DOSE = 9
+#: Tentative collisions of the photons' Woodcock flights (:mod:`._delta`).
+C_DELTA_STEPS = 9
+N_COUNTS_DOSE = 10
 #: Columns of a stack row: energy, x, y, z, u, v, w, cell, species, statistical weight.
 STACK_COLUMNS = 10
 #: Steps in a row that move no mass thickness before the track is counted lost.

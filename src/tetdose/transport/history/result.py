@@ -46,7 +46,7 @@ COUNT_KEYS = ("lost_photons", "relocations", "stack_overflows", "tet_crossings",
 #: escaped (a positron with its 2mc²), e± kinetic energy below the cut-off; and counters.
 LEDGER_KEYS_DOSE = (*LEDGER_KEYS, "electron_deposited_mev", "electron_escaped_mev",
                     "electron_cutoff_mev", "roulette_mev")
-COUNT_KEYS_DOSE = (*COUNT_KEYS, "electron_steps", "electron_tracks")
+COUNT_KEYS_DOSE = (*COUNT_KEYS, "electron_steps", "electron_tracks", "woodcock_steps")
 
 
 class FrozenExtra(dict):
@@ -71,7 +71,7 @@ class DoseResult:
     ``mass_g`` (n_cells,); ``ledger_per_batch_mev`` (B, 5) columns :data:`LEDGER_KEYS`;
     ``counts_per_batch`` (B, 7): lost photons, relocations, secondaries dropped off a full stack,
     tetrahedron crossings, voxel steps, mesh ↔ voxel switches, source photons that missed the
-    world (:data:`COUNT_KEYS`). Dose mode (electron transport) has 9 ledger and 9 counter
+    world (:data:`COUNT_KEYS`). Dose mode (electron transport) has 9 ledger and 10 counter
     columns (:data:`LEDGER_KEYS_DOSE`, :data:`COUNT_KEYS_DOSE`; lost counts every particle);
     ``extra["physics"]`` says which the dose is.
     ``geometry``: "mesh", "voxel" or "hybrid"; ``n_tets`` leading cells are tetrahedra;

@@ -50,7 +50,7 @@ def _loglog(a, b, f):
 
 
 @njit(cache=True, inline="always")
-def _grid_position(xs, energy_mev):
+def grid_position(xs, energy_mev):
     """(i, f): E lies at fraction f of the ln(E) interval [E_i, E_i+1], clamped to the grid."""
     n = xs.mu_rho_cm2_g.shape[1]
     x = (math.log(energy_mev) - xs.ln_e_min) / xs.d_ln_e
@@ -87,7 +87,7 @@ def lookup(xs, material, energy_mev):
     Log–log interpolation between the two ln(E) grid nodes around E; E outside the grid takes
     the end value. Pair is exactly 0 below 2mc² = 1.022 MeV.
     """
-    i, f = _grid_position(xs, energy_mev)
+    i, f = grid_position(xs, energy_mev)
     inc, pe, pair = _transported(xs, material, energy_mev, i, f)
     en = xs.mu_en_rho_cm2_g
     mu_en = _loglog(en[material, i], en[material, i + 1], f)
@@ -103,16 +103,31 @@ def transport_coefficients(xs, material, energy_mev):
     interpolation error (< 1e-4 relative). Only in the grid interval that contains 2mc² does
     the pair part of the upper node (< 3e-6 of μ_t) reach energies below the threshold.
     """
-    i, f = _grid_position(xs, energy_mev)
+    i, f = grid_position(xs, energy_mev)
     return (math.exp(_lerp(xs.ln_mu_transported, material, i, f)),
             math.exp(_lerp(xs.ln_mu_en, material, i, f)))
+
+
+@njit(cache=True, inline="always")
+def mu_transported_at(xs, material, i, f):
+    """μ_t/ρ [cm²/g] at grid position (i, f) of :func:`grid_position` (the first value of
+    :func:`transport_coefficients`, bit for bit, for a caller that keeps (i, f) for one E)."""
+    return math.exp(_lerp(xs.ln_mu_transported, material, i, f))
+
+
+@njit(cache=True, inline="always")
+def majorant_at(ln_mu_hat, i, f):
+    """μ̂ [1/cm] at grid position (i, f) of a majorant table ln μ̂ [ln 1/cm] on the nodes of the
+    cross sections (linear in ln E, as :func:`transport_coefficients`)."""
+    a = ln_mu_hat[i]
+    return math.exp(a + f * (ln_mu_hat[i + 1] - a))
 
 
 @kernel
 def branching_fractions(xs, material, energy_mev):
     """(μ_incoh/μ_t, μ_pair/μ_t) at E [MeV], interpolated linearly in ln E as :func:`interact`
     does (dose mode chooses its process with them, :mod:`tetdose.transport.history._coupled`)."""
-    i, f = _grid_position(xs, energy_mev)
+    i, f = grid_position(xs, energy_mev)
     return _lerp(xs.p_incoherent, material, i, f), _lerp(xs.p_pair, material, i, f)
 
 
@@ -193,7 +208,7 @@ def interact(xs, material, energy_mev, u, v, w, state):
     absorbed) and a secondary photon (energy 0 when none, pair only). Energy balance:
     deposited + energy_out + secondary = E.
     """
-    i, f = _grid_position(xs, energy_mev)
+    i, f = grid_position(xs, energy_mev)
     p_incoherent = _lerp(xs.p_incoherent, material, i, f)
     state, r = next_uniform(state)
     if r < p_incoherent:

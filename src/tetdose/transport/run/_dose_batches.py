@@ -60,12 +60,14 @@ def _sample_group(wg, src_g, src_e, src_p, vol, group_cdf, state):
 
 
 @njit(cache=True, parallel=True)
-def run_world_dose(tet, vox, tri_lo, tri_n, tri_start, tri_items, xs, et, sig_hat, src_g, src_e,
-                   src_p, vol, group_cdf, seed, stream, n_hist, n_batches, b_start, b_stop,
-                   photon_cutoff, f_loss, n_split, rr_mev, energy, ledger, counts):
+def run_world_dose(tet, vox, tri_lo, tri_n, tri_start, tri_items, xs, ln_mu_hat, et, sig_hat,
+                   src_g, src_e, src_p, vol, group_cdf, seed, stream, n_hist, n_batches, b_start,
+                   b_stop, photon_cutoff, f_loss, n_split, rr_mev, energy, ledger, counts):
     """Run batches ``b_start … b_stop−1`` (as :func:`~._batches.run_world`): batch b fills row
     ``b − b_start`` of energy [MeV per cell], ledger (:data:`N_LEDGER_DOSE` columns) and counts
-    (:data:`N_COUNTS_DOSE`). ``et`` electron tables, ``sig_hat`` their hard-event majorant,
+    (:data:`N_COUNTS_DOSE`). ``ln_mu_hat`` the photons' majorant table for Woodcock tracking
+    through the mesh (empty: they walk it), ``et`` electron tables, ``sig_hat`` their
+    hard-event majorant,
     ``photon_cutoff`` [MeV], ``f_loss`` the largest energy-loss fraction per electron step,
     ``n_split`` the copies of each source photon (1: no splitting), ``rr_mev`` the range
     rejection's largest electron energy [MeV] (0: off).
@@ -92,8 +94,8 @@ def run_world_dose(tet, vox, tri_lo, tri_n, tri_start, tri_items, xs, et, sig_ha
             copies = n_split if sp == PHOTON else 1
             wt = 1.0 / copies
             for _ in range(copies):
-                state = coupled_history(wg, xs, et, sig_hat, sp, e, cell, x, y, z, u, v, w,
-                                        state, photon_cutoff, f_loss, wt, rr_mev, tally, led, cnt, stack,
-                                        bcell, bcol)
+                state = coupled_history(wg, xs, ln_mu_hat, et, sig_hat, sp, e, cell, x, y, z,
+                                        u, v, w, state, photon_cutoff, f_loss, wt, rr_mev, tally,
+                                        led, cnt, stack, bcell, bcol)
         ledger[b - b_start, :] = led
         counts[b - b_start, :] = cnt

@@ -1,4 +1,5 @@
-"""Dose mode's batch rows: electron tables, their hard-event majorant, the coupled kernel call.
+"""Dose mode's batch rows: electron tables, their hard-event majorant, the photons' Woodcock
+majorant, the coupled kernel call.
 
 The majorant ``sig_hat[m, sp, i]`` bounds the total hard cross section σ = σ_δ + σ_brems
 (+ σ_annih for positrons) over every energy a step starting in grid interval i can reach: a step
@@ -26,6 +27,10 @@ from tetdose.transport.sources.arrays import E_MAX_MEV
 
 #: Relative margin of the majorant against rounding.
 MAJORANT_MARGIN = 1e-12
+#: Relative margin of the photons' Woodcock majorant (rounding of a linear density evaluated
+#: at a point up to 1e-9 mm outside its tet), and the floor of ln μ̂ [ln 1/cm] (vacuum).
+PHOTON_MAJORANT_MARGIN = 1e-9
+LN_MU_HAT_FLOOR = -700.0
 
 
 def hard_majorant(et: ElectronTables, f_loss: float) -> FloatArray:
@@ -38,6 +43,25 @@ def hard_majorant(et: ElectronTables, f_loss: float) -> FloatArray:
     for i in range(n):
         out[:, :, i] = total[:, :, max(i - w, 0):min(i + 2, n)].max(axis=2)
     out *= 1.0 + MAJORANT_MARGIN
+    out.flags.writeable = False
+    return out
+
+
+def photon_majorant(xs: CrossSections, rho_max_g_cm3: FloatArray) -> FloatArray:
+    """(n_E,) ln μ̂ [ln 1/cm] on the nodes of ``xs``: max over materials m of
+    ln (μ/ρ)_m + ln ρ_max,m (``rho_max_g_cm3[m]``, materials of density 0 left out), times
+    1 + :data:`PHOTON_MAJORANT_MARGIN`.
+
+    The kernels interpolate ln μ linearly in ln E between the same nodes, so the majorant's
+    interpolant bounds every material's at every energy, not only at the nodes
+    (:mod:`tetdose.transport.history._delta`). All densities 0: μ̂ ≈ 0 (e^−700 /cm)."""
+    rho = np.asarray(rho_max_g_cm3, dtype=np.float64)
+    used = np.flatnonzero(rho > 0.0)
+    out = np.full(xs.ln_mu_transported.shape[1], LN_MU_HAT_FLOOR)
+    if len(used):
+        out = np.maximum(out, (np.asarray(xs.ln_mu_transported)[used]
+                               + np.log(rho[used])[:, None]).max(axis=0))
+    out += math.log1p(PHOTON_MAJORANT_MARGIN)
     out.flags.writeable = False
     return out
 
@@ -65,7 +89,9 @@ def run_dose_rows(job, xs: CrossSections, settings: TransportSettings,  # noqa: 
     :class:`~tetdose.transport.run.job.TransportJob` (arrays of ``b_stop − b_start`` rows)."""
     et, sig_hat = electron_tables(job.names, settings)
     ps = job.particles
-    run_world_dose(*job.geom, xs, et, sig_hat, job.src, ps.electron, ps.positron, ps.volume,
+    ln_mu_hat = (photon_majorant(xs, job.geom.tet.rho_max)
+                 if settings.photon_tracking == "woodcock" and job.n_tets > 0 else np.zeros(0))
+    run_world_dose(*job.geom, xs, ln_mu_hat, et, sig_hat, job.src, ps.electron, ps.positron, ps.volume,
                    ps.group_cdf, settings.seed, settings.stream, settings.n_histories,
                    settings.n_batches, b_start, b_stop, settings.energy_cutoff_mev,
                    settings.max_energy_loss_fraction, settings.photon_splitting,

@@ -267,7 +267,8 @@ def physics_record(settings: TransportSettings) -> dict[str, object]:
         rec.update(electron_cutoff_mev=settings.electron_cutoff_mev,
                    max_energy_loss_fraction=settings.max_energy_loss_fraction,
                    photon_splitting=settings.photon_splitting,
-                   range_rejection_mev=settings.range_rejection_mev)
+                   range_rejection_mev=settings.range_rejection_mev,
+                   photon_tracking=settings.photon_tracking)
     return rec
 
 

@@ -13,7 +13,11 @@ photon as n copies of weight 1/n and plays Russian roulette with the electrons t
 E: an electron of at most E starting in a voxel or tet it cannot leave deposits its energy there
 at once (EGSnrc's ESAVE; only the hard bremsstrahlung it would have radiated stays too; 0: off).
 The estimator is ``"track_length"`` (kerma default) or ``"analog"``; dose mode scores the analog
-energy deposition only.
+energy deposition only. ``photon_tracking``: dose mode moves photons through the mesh by
+Woodcock (delta) tracking (``"woodcock"``, default: a majorant, point location, no tet walk;
+:mod:`tetdose.transport.history._delta`) or walks them tet by tet as kerma mode does
+(``"walk"``); both give the same dose within statistics (different random numbers). Kerma mode
+always walks (its track-length estimator needs every segment).
 """
 
 from __future__ import annotations
@@ -26,6 +30,8 @@ from tetdose.errors import PlanError
 ESTIMATORS = ("analog", "track_length")
 #: The one spelling of each physics model (`--physics`).
 PHYSICS = ("dose", "kerma")
+#: How dose mode moves photons through the mesh: Woodcock (delta) tracking or the tet walk.
+PHOTON_TRACKING = ("woodcock", "walk")
 #: Defaults of the electron settings (cut-off [MeV], ESTEPE).
 ELECTRON_CUTOFF_MEV = 0.2
 MAX_ENERGY_LOSS_FRACTION = 0.25
@@ -62,6 +68,8 @@ class TransportSettings:
     photon_splitting: int = PHOTON_SPLITTING
     #: Range rejection below this electron energy [MeV] in cells it cannot leave; 0: off.
     range_rejection_mev: float = RANGE_REJECTION_MEV
+    #: Dose mode's photon flights through the mesh: "woodcock" (delta tracking) or "walk".
+    photon_tracking: str = "woodcock"
 
     def __post_init__(self) -> None:
         if int(self.n_batches) < 2:
@@ -100,6 +108,9 @@ class TransportSettings:
         if not 0.0 <= self.range_rejection_mev <= 20.0:
             raise PlanError(f"range_rejection_mev must lie in [0, 20] MeV (0 = off), got "
                             f"{self.range_rejection_mev}")
+        if self.photon_tracking not in PHOTON_TRACKING:
+            raise PlanError(f"photon_tracking {self.photon_tracking!r} is unknown; use one of "
+                            f"{PHOTON_TRACKING}")
         object.__setattr__(self, "range_rejection_mev", float(self.range_rejection_mev))
         for name in ("n_histories", "n_batches", "seed", "stream", "photon_splitting"):
             object.__setattr__(self, name, int(getattr(self, name)))
