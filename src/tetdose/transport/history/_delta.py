@@ -41,6 +41,7 @@ from tetdose._constants import MM_PER_CM
 from tetdose._random import next_uniform
 from tetdose.transport.geometry._tet import density_at, locate_point
 from tetdose.transport.geometry._voxel import box_interval
+from tetdose.transport.geometry._walk import MAX_SWITCHES, after_grid
 from tetdose.transport.geometry._world import (
     HIT_TOL_MM,
     cell_material,
@@ -53,7 +54,6 @@ from tetdose.transport.history._photon import (
     ESCAPES,
     INTERACTS,
     LOST,
-    MAX_SWITCHES,
     flight_voxel,
 )
 from tetdose.transport.physics._photon import grid_position, majorant_at, mu_transported_at
@@ -132,9 +132,7 @@ def flight_delta(wg, xs, ln_mu_hat, e, cell, x, y, z, u, v, w, tau, state, tally
             if out == INTERACTS:
                 return state, out, cell, x, y, z
             if out == ESCAPES:  # left the grid: vacuum, maybe a mesh part beyond the CT
-                cell = -1
-                if m_tets > 0:
-                    cell, x, y, z = vacuum_flight(wg, x, y, z, u, v, w, 0.0)
+                cell, x, y, z = after_grid(wg, x, y, z, u, v, w)
             # ENTERS: cell is the tet entered, Woodcock tracking from the hit point
         if cell < 0:
             return state, ESCAPES, -1, x, y, z
