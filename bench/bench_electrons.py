@@ -332,7 +332,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--ompmc", type=float, default=2e4, help="ompmc histories per run")
     ap.add_argument("--tetdose", type=float, default=2e5, help="tetdose histories per run")
-    ap.add_argument("--world-histories", type=float, default=2e4)
+    ap.add_argument("--world-histories", type=float, default=4e5)
     ap.add_argument("--cases", default="water_2MeV_100,water_6MV_100,slab_2MeV_30")
     ap.add_argument("--pegs", default="700icru")
     ap.add_argument("--split", default="1")

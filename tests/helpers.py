@@ -2,6 +2,12 @@
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
 import numpy as np
 
 from tetdose.core.calibration import HUCalibration
@@ -77,3 +83,26 @@ def ray_interval(v: np.ndarray, p: np.ndarray, d: np.ndarray) -> tuple[float, fl
         elif dist < 0:
             t_in = np.inf
     return t_in, t_out
+
+
+TESTS_DIR = Path(__file__).resolve().parent
+
+
+def same_bits_with_one_or_two_threads(tmp_path: Path, imports_from: Path, run: str) -> None:
+    """Run ``run`` (Python code that leaves a transport result in ``r``) in fresh processes with
+    1 and 2 numba threads, ``imports_from`` (a tests folder) and tests/ on ``sys.path``; assert
+    the per-batch energies and ledgers are non-zero and the same bit for bit."""
+    script = tmp_path / "repro.py"
+    script.write_text(
+        "import sys\nimport numpy as np\n"
+        f"sys.path[:0] = [{str(imports_from)!r}, {str(TESTS_DIR)!r}]\n" + textwrap.dedent(run)
+        + "\nnp.save(sys.argv[1], np.concatenate([r.energy_per_batch_mev.ravel(), "
+          "r.ledger_per_batch_mev.ravel()]))\n")
+    out = {}
+    for threads in (1, 2):
+        path = tmp_path / f"t{threads}.npy"
+        subprocess.run([sys.executable, str(script), str(path)], check=True, timeout=900,
+                       env={**os.environ, "NUMBA_NUM_THREADS": str(threads)})
+        out[threads] = np.load(path)
+    assert out[1].sum() > 0
+    np.testing.assert_array_equal(out[1], out[2])

@@ -7,9 +7,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import subprocess
-import sys
 import textwrap
 from pathlib import Path
 
@@ -41,6 +38,7 @@ from tetdose.transport.physics.electron_xs import (
 )
 
 import helpers
+from helpers import same_bits_with_one_or_two_threads
 
 #: NIST ESTAR CSDA range of 1 MeV electrons in liquid water [g/cm²] (NIST SRD 124).
 ESTAR_WATER_1MEV_G_CM2 = 0.4367
@@ -101,11 +99,7 @@ def test_dose_mode_on_the_hybrid_world_along_voxel_edges_and_mesh_faces():
 
 
 def test_dose_mode_same_seed_same_bits_with_one_or_two_threads(tmp_path):
-    script = tmp_path / "repro.py"
-    script.write_text(textwrap.dedent(f"""
-        import sys, numpy as np
-        sys.path.insert(0, {str(Path(__file__).parent)!r})
-        sys.path.insert(0, {str(Path(__file__).parents[1])!r})
+    same_bits_with_one_or_two_threads(tmp_path, Path(__file__).parent, """
         from test_dose_transport import CHARGED
         from test_hybrid import SLAB_PLAN, _slab_world
         from tetdose.plan.volume_source import VolumeSource
@@ -115,17 +109,7 @@ def test_dose_mode_same_seed_same_bits_with_one_or_two_threads(tmp_path):
                     volume_sources=(VolumeSource("positron", (1.0,)),))
         r = simulate(World(mesh=mesh, density=ct), plan,
                      TransportSettings(3000, 8, 9, electron_cutoff_mev=0.05), progress=False)
-        np.save(sys.argv[1], np.concatenate([r.energy_per_batch_mev.ravel(),
-                                             r.ledger_per_batch_mev.ravel()]))
-    """))
-    out = {}
-    for threads in (1, 2):
-        path = tmp_path / f"t{threads}.npy"
-        subprocess.run([sys.executable, str(script), str(path)], check=True, timeout=900,
-                       env={**os.environ, "NUMBA_NUM_THREADS": str(threads)})
-        out[threads] = np.load(path)
-    assert out[1].sum() > 0
-    np.testing.assert_array_equal(out[1], out[2])
+    """)
 
 
 def _csda_tables(cutoff_mev=0.001):

@@ -5,10 +5,6 @@ estimates a run's time runs coupled histories, so the estimate counts the electr
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
-import textwrap
 import warnings
 from pathlib import Path
 
@@ -20,6 +16,8 @@ from tetdose.errors import PlanError
 from tetdose.transport import PhotonSource, Plan, TransportSettings, World, simulate
 from tetdose.transport.run import job as job_module
 from tetdose.transport.run.job import build_job, cross_sections, preflight
+
+from helpers import same_bits_with_one_or_two_threads
 
 #: Slab along z [mm]: water 0–20, lung (0.26) 20–40, cortical bone (1.85) 40–50, water 50–80.
 LAYERS = ((0, 20, 1.0, 1), (20, 40, 0.26, 2), (40, 50, 1.85, 3), (50, 80, 1.0, 1))
@@ -134,28 +132,14 @@ def test_photon_splitting_setting_is_checked():
 
 
 def test_split_dose_same_bits_with_one_or_two_threads(tmp_path):
-    script = tmp_path / "repro.py"
-    script.write_text(textwrap.dedent(f"""
-        import sys, numpy as np
-        sys.path.insert(0, {str(Path(__file__).parent)!r})
-        sys.path.insert(0, {str(Path(__file__).parents[1])!r})
+    same_bits_with_one_or_two_threads(tmp_path, Path(__file__).parent, """
         from test_dose_variance_reduction import SLAB_PLAN, slab_phantom
         from tetdose.transport import TransportSettings, simulate
         rho, lab = slab_phantom()
         r = simulate(rho, SLAB_PLAN, TransportSettings(3000, 8, 9, electron_cutoff_mev=0.1,
                                                        photon_splitting=3),
                      labels=lab, progress=False)
-        np.save(sys.argv[1], np.concatenate([r.energy_per_batch_mev.ravel(),
-                                             r.ledger_per_batch_mev.ravel()]))
-    """))
-    out = {}
-    for threads in (1, 2):
-        path = tmp_path / f"t{threads}.npy"
-        subprocess.run([sys.executable, str(script), str(path)], check=True, timeout=900,
-                       env={**os.environ, "NUMBA_NUM_THREADS": str(threads)})
-        out[threads] = np.load(path)
-    assert out[1].sum() > 0
-    np.testing.assert_array_equal(out[1], out[2])
+    """)
 
 
 def test_preflight_times_coupled_histories_so_the_estimate_counts_the_electrons(monkeypatch):

@@ -260,33 +260,17 @@ def test_rays_along_voxel_edges_mesh_vertices_and_faces_are_never_lost():
 
 
 def test_same_seed_same_bits_for_the_hybrid_with_one_or_two_threads(tmp_path):
-    import os
-    import subprocess
-    import sys
-    import textwrap
     from pathlib import Path
 
-    script = tmp_path / "repro.py"
-    script.write_text(textwrap.dedent(f"""
-        import sys, numpy as np
-        sys.path.insert(0, {str(Path(__file__).parent)!r})
-        sys.path.insert(0, {str(Path(__file__).parents[1])!r})
+    from helpers import same_bits_with_one_or_two_threads
+
+    same_bits_with_one_or_two_threads(tmp_path, Path(__file__).parent, """
         from test_hybrid import SLAB_PLAN, _slab_world
         from tetdose.transport import TransportSettings, World, simulate
         mesh, ct = _slab_world()
         r = simulate(World(mesh=mesh, density=ct), SLAB_PLAN,
                      TransportSettings(4000, 8, 9, physics="kerma"), progress=False)
-        np.save(sys.argv[1], np.concatenate([r.energy_per_batch_mev.ravel(),
-                                             r.ledger_per_batch_mev.ravel()]))
-    """))
-    out = {}
-    for threads in (1, 2):
-        path = tmp_path / f"t{threads}.npy"
-        subprocess.run([sys.executable, str(script), str(path)], check=True, timeout=600,
-                       env={**os.environ, "NUMBA_NUM_THREADS": str(threads)})
-        out[threads] = np.load(path)
-    assert out[1].sum() > 0
-    np.testing.assert_array_equal(out[1], out[2])
+    """)
 
 
 def test_cli_dose_on_mesh_inside_ct_then_compare(tmp_path):

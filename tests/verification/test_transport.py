@@ -6,9 +6,6 @@ from __future__ import annotations
 import itertools
 import json
 import math
-import os
-import subprocess
-import sys
 import textwrap
 from pathlib import Path
 
@@ -34,6 +31,8 @@ from tetdose.transport.geometry.world import voxel_world
 from tetdose.transport.history._photon import ESCAPES, INTERACTS, N_COUNTS, flight_mesh, flight_voxel
 from tetdose.transport.physics._photon import transport_coefficients
 from tetdose.transport.physics.xs import build_cross_sections
+
+from helpers import same_bits_with_one_or_two_threads
 
 REPO = Path(__file__).resolve().parents[2]
 WATER_MU_RHO_1MEV = 0.07072  # NIST XCOM, cm²/g (total with coherent; coherent is 0.05 % of it)
@@ -238,30 +237,14 @@ def test_sigma_scales_as_inverse_sqrt_n(water_box):
     assert ok.sum() > 50 and ratio == pytest.approx(2.0, rel=0.12)
 
 
-_REPRO = textwrap.dedent("""
-    import sys, numpy as np
-    sys.path.insert(0, {test_dir!r})
-    from test_transport import ADVERSARIAL_PLAN, _slab_mesh_with_regions
-    from tetdose.transport import TransportSettings, simulate
-    r = simulate(_slab_mesh_with_regions(), ADVERSARIAL_PLAN,
-                 TransportSettings(3000, 6, 9, estimator="analog", physics="kerma"), progress=False)
-    np.save(sys.argv[1], np.concatenate([r.energy_per_batch_mev.ravel(),
-                                         r.ledger_per_batch_mev.ravel()]))
-""")
-
-
 def test_same_seed_one_or_two_threads_gives_identical_dose(tmp_path):
-    script = tmp_path / "repro.py"
-    script.write_text(_REPRO.format(test_dir=str(Path(__file__).parent)))
-    out = {}
-    for threads in (1, 2):
-        env = {**os.environ, "NUMBA_NUM_THREADS": str(threads)}
-        path = tmp_path / f"t{threads}.npy"
-        subprocess.run([sys.executable, str(script), str(path)], check=True, env=env,
-                       cwd=REPO, timeout=600)
-        out[threads] = np.load(path)
-    assert out[1].sum() > 0
-    np.testing.assert_array_equal(out[1], out[2])
+    same_bits_with_one_or_two_threads(tmp_path, Path(__file__).parent, """
+        from test_transport import ADVERSARIAL_PLAN, _slab_mesh_with_regions
+        from tetdose.transport import TransportSettings, simulate
+        r = simulate(_slab_mesh_with_regions(), ADVERSARIAL_PLAN,
+                     TransportSettings(3000, 6, 9, estimator="analog", physics="kerma"),
+                     progress=False)
+    """)
 
 
 def _cli(argv):
