@@ -78,7 +78,7 @@ class StudyConfig:
     seed: int = 1
     n_phases: int = 10
     amplitude_mm: float = 12.0
-    histories: int = 100_000  # per phase and geometry
+    histories: int = 300_000  # per phase and geometry
     physics: str = "dose"  # absorbed dose (electrons transported), or "kerma"
     electron_cutoff_mev: float = 0.2
     batches: int = 10
