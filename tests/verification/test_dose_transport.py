@@ -57,8 +57,11 @@ def _closes(result):
     assert rest == pytest.approx(led["source_mev"], rel=1e-9)
     local = (led["deposited_mev"] + led["cutoff_mev"] + led["electron_deposited_mev"]
              + led["electron_cutoff_mev"])
-    assert result.energy_per_batch_mev.sum() / result.n_histories == pytest.approx(local,
-                                                                                   rel=1e-9)
+    assert result.absorbed_mev == pytest.approx(local, rel=1e-12)
+    assert result.escaped_mev == pytest.approx(led["escaped_mev"] + led["electron_escaped_mev"],
+                                               rel=1e-12)
+    assert result.energy_per_batch_mev.sum() / result.n_histories == pytest.approx(
+        result.absorbed_mev, rel=1e-9)
     assert result.lost_photons == 0 and led["lost_mev"] == 0.0
 
 
@@ -247,7 +250,7 @@ def test_dose_mode_on_dask_matches_the_local_run_bitwise():
     np.testing.assert_array_equal(remote.counts_per_batch, local.counts_per_batch)
 
 
-def test_cli_dose_is_the_default_and_the_record_says_so(tmp_path):
+def test_cli_dose_is_the_default_and_the_record_says_so(tmp_path, capsys):
     from tetdose.cli import main
     from tetdose.core.io import read_image, write_image
 
@@ -264,10 +267,16 @@ def test_cli_dose_is_the_default_and_the_record_says_so(tmp_path):
         1 = "water"
     """))
     common = ["--ct", str(tmp_path / "ct.nrrd"), "--labels", str(tmp_path / "labels.nrrd"),
-              "--plan", str(tmp_path / "plan.toml"), "--histories", "2e3", "-q"]
+              "--plan", str(tmp_path / "plan.toml"), "--histories", "2e3"]
     assert main(["dose", *common, "--electron-cutoff-mev", "0.1", "-o",
                  str(tmp_path / "dose.nrrd")]) == 0
     rec = json.loads((tmp_path / "dose.json").read_text())
+    # the summary line counts the electrons' energy (a 4 MeV pencil: most of it stays)
+    absorbed = float(capsys.readouterr().out.split("absorbed ")[1].split(" MeV")[0])
+    led = rec["ledger"]
+    assert absorbed == pytest.approx(led["electron_deposited_mev"] + led["electron_cutoff_mev"]
+                                     + led["deposited_mev"] + led["cutoff_mev"], rel=1e-3)
+    assert absorbed > 2.0
     assert rec["physics"] == "dose" and rec["electron_cutoff_mev"] == 0.1
     assert rec["estimator"] == "analog" and rec["ledger"]["electron_deposited_mev"] > 0
     assert read_image(tmp_path / "dose.nrrd").array.max() > 0

@@ -275,12 +275,17 @@ def run(args: argparse.Namespace) -> int:
     result = result.with_extra(**extra, world=world.kind, outputs=outputs)
     path = result.save_json(record_path(args.output))
     if not args.quiet:
-        led = result.ledger
-        unit = result.record()["units"]["dose"]
-        print(f"dose ({world.kind}): {result.n_histories} histories in {result.wall_s:.1f} s; "
-              f"max {result.dose_gy.max():.4g} {unit}; deposited {led['deposited_mev']:.4g} MeV and "
-              f"escaped {led['escaped_mev']:.4g} MeV per particle → {', '.join(outputs)}, {path}")
+        print(summary_line(result, world.kind, outputs, path))
     return 0
+
+
+def summary_line(result: Any, world: str, outputs: list[str], path: Path) -> str:  # noqa: ANN401
+    """The one line ``dose`` prints: histories, time, maximum dose, and the energy absorbed in
+    and escaping the world per source particle (photons and electrons)."""
+    unit = result.record()["units"]["dose"]
+    return (f"dose ({world}): {result.n_histories} histories in {result.wall_s:.1f} s; max "
+            f"{result.dose_gy.max():.4g} {unit}; absorbed {result.absorbed_mev:.4g} MeV and "
+            f"escaped {result.escaped_mev:.4g} MeV per particle → {', '.join(outputs)}, {path}")
 
 
 def _run_ompmc(args: argparse.Namespace, plan: Any, settings: Any, mesh: Any, density: Any,
@@ -326,9 +331,5 @@ def _run_ompmc(args: argparse.Namespace, plan: Any, settings: Any, mesh: Any, de
     result = main.with_extra(**extra, world=world, outputs=outputs)
     path = result.save_json(record_path(args.output))
     if not args.quiet:
-        led = result.ledger
-        unit = result.record()["units"]["dose"]
-        print(f"dose ({world}): {result.n_histories} histories in {result.wall_s:.1f} s; max "
-              f"{result.dose_gy.max():.4g} {unit}; deposited {led['deposited_mev']:.4g} MeV and "
-              f"escaped {led['escaped_mev']:.4g} MeV per particle → {', '.join(outputs)}, {path}")
+        print(summary_line(result, world, outputs, path))
     return 0

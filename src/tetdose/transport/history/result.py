@@ -145,6 +145,17 @@ class DoseResult:
         return {k: float(v) for k, v in zip(keys, tot, strict=True)}
 
     @property
+    def absorbed_mev(self) -> float:
+        """Energy that stays in the world per source particle [MeV]: the deposited and cut-off
+        columns of photons and, in dose mode, of e± (what the tallies hold in an analog run)."""
+        return sum(v for k, v in self.ledger.items() if k.endswith(("deposited_mev", "cutoff_mev")))
+
+    @property
+    def escaped_mev(self) -> float:
+        """Energy leaving the world per source particle [MeV], photons and e±."""
+        return sum(v for k, v in self.ledger.items() if k.endswith("escaped_mev"))
+
+    @property
     def ledger_closure(self) -> float:
         """|source − Σ every other ledger column| / source: how well the energy ledger closes
         (photon and, in dose mode, electron columns; round-off only)."""
