@@ -261,8 +261,7 @@ def coupled_history(wg, xs, ln_mu_hat, et, sig_hat, sp, e, cell, x, y, z, u, v, 
     while True:
         if sp == PHOTON:
             state, n_stack = photon_track(wg, xs, ln_mu_hat, e, cell, x, y, z, u, v, w, state,
-                                          p_cut,
-                                          et.cutoff_mev, wt, tally, ledger, counts, stack,
+                                          p_cut, et.cutoff_mev, wt, tally, ledger, counts, stack,
                                           n_stack)
         elif (sp == ELECTRON and e <= rr_mev
               and range_of(et, cell_material(wg, cell), sp, e) * MM_PER_CM
