@@ -178,7 +178,8 @@ class _Run:
 
     def motion(self) -> str:
         model = BreathingModel(amplitude_mm=self.c.amplitude_mm)
-        series = model.series(self.mapped.mesh, self.c.n_phases)
+        series = model.series(self.mapped.mesh, self.c.n_phases,
+                              density_g_cm3=self.mapped.density_g_cm3)
         self.series, reports = update_series(series, self.mapped.density_g_cm3)
         self.series.write(self.out / "phases")
         self.summary["motion"] = [asdict(r) for r in reports]

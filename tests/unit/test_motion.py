@@ -280,8 +280,61 @@ def test_breathing_cycle_and_field():
     np.testing.assert_allclose(u[bottom, 2], -6.0)  # full amplitude at the diaphragm, downwards
     np.testing.assert_allclose(u[np.isclose(mesh.points_mm[:, 2], 120.0)], 0.0)  # still apex
     assert np.abs(u[:, :2]).max() < 0.5 * np.abs(u[:, 2]).max()
-    vol = [mesh.moved(p).volumes_mm3.sum() for p in series.points_mm]
+    vol = np.array([mesh.moved(p).volumes_mm3.sum() for p in series.points_mm])
+    # No lung: tissue keeps its volume (det of the continuous map is 1; tets to curvature).
+    np.testing.assert_allclose(vol / mesh.volumes_mm3.sum(), 1.0, atol=2e-3)
+    lung = model.series(mesh, 10, lung_regions=[0])  # the whole (unlabelled) mesh as lung
+    vol = [mesh.moved(p).volumes_mm3.sum() for p in lung.points_mm]
     assert vol[0] > vol[2] > vol[5] == pytest.approx(mesh.volumes_mm3.sum())  # inhale expands
+
+
+def _label_density(phantom) -> np.ndarray:
+    """Vertex density [g/cm³]: 0.26 in lung tets, 1.0 elsewhere (averaged at shared vertices)."""
+    mesh = phantom.mesh
+    lung = [k for k, v in phantom.materials.items() if v == "lung"]
+    rho_tet = np.where(np.isin(mesh.region, lung), 0.26, 1.0)
+    total = np.bincount(mesh.tets.ravel(), np.repeat(rho_tet, 4), mesh.n_points)
+    return total / np.bincount(mesh.tets.ravel(), minlength=mesh.n_points)
+
+
+def _volumes(phantom, amplitude_mm=10.0):
+    from tetdose.motion.conserve import region_volumes
+
+    mesh = phantom.mesh
+    series = BreathingModel(amplitude_mm).series(mesh, 4, density_g_cm3=_label_density(phantom))
+    return {r.region: r for r in region_volumes(mesh, mesh.moved(series.points_mm[0]))}
+
+
+def test_breathing_keeps_liver_volume():
+    """Issue 27: the liver phantom grew 16 % (tets up to 36 %); liver is incompressible."""
+    from tetdose.phantoms import make_phantom
+
+    mesh = make_phantom("liver", size="small").mesh
+    series = BreathingModel(10.0).series(mesh, 4, density_g_cm3=np.ones(mesh.n_points))
+    rel = mesh.moved(series.points_mm[0]).volumes_mm3 / mesh.volumes_mm3 - 1.0  # end-inhale
+    assert abs(mesh.moved(series.points_mm[0]).volumes_mm3.sum() / mesh.volumes_mm3.sum() - 1) < 5e-3
+    assert np.percentile(np.abs(rel), 99) < 0.04  # the motion's curvature across a tet
+    assert np.abs(rel).max() < 0.2  # the worst: flat tets on the staircase surface
+    assert np.abs(series.points_mm[0] - mesh.points_mm).max() > 9.0  # it does move
+
+
+def test_breathing_changes_lung_volume_only():
+    """Thorax: every non-lung region keeps its volume (≤ 2 %); a free lung (the lung phantom's
+    mesh is lung and vessels) grows on inhale by the model's expansion."""
+    from tetdose.phantoms import make_phantom
+
+    thorax = make_phantom("thorax", size="small")
+    for label, r in _volumes(thorax).items():
+        if thorax.materials[label] not in ("lung", "blood"):  # vessels sit inside the lung
+            assert abs(r.total) < 0.02, (thorax.label_names[label], r)
+            assert abs(r.median) < 0.01
+    lung = _volumes(make_phantom("lung", size="small"))[2]
+    assert 0.05 < lung.total < 0.2 and lung.min > 0.0
+
+
+def test_breathing_lung_regions_are_checked():
+    with pytest.raises(TetdoseError, match=r"lung region\(s\) \[9\] not in the mesh"):
+        BreathingModel().series(box_mesh(), 2, lung_regions=[9])
 
 
 # --- CLI --------------------------------------------------------------------------------------
@@ -306,6 +359,10 @@ def test_cli_deform_breathing_and_4dct(tmp_path):
                             mesh.point_data["density"])) / 1000.0
     np.testing.assert_allclose(report["total_mass_g"], ref_mass, rtol=1e-12)
     np.testing.assert_array_equal(report["phase_percent"], [0.0, 25.0, 50.0, 75.0])
+    volumes = read_report(out / "volume_report.csv")  # ΔV/V per phase and region
+    np.testing.assert_array_equal(volumes["phase_percent"], [0.0, 25.0, 50.0, 75.0])
+    assert np.all(np.abs(volumes["volume_change_total"]) < 5e-3)  # no lung: volume kept
+    assert np.all(volumes["volume_change_min"] <= volumes["volume_change_median"])
     series = PhaseSeries.read(None, out)
     assert series.n_phases == 4 and series.density_g_cm3 is not None
     assert np.abs(series.points_mm[0] - mesh.points_mm).max() == pytest.approx(4.0)

@@ -57,6 +57,9 @@ def _add_deform_args(p: argparse.ArgumentParser) -> None:
                    help="breathing: number of phases")
     p.add_argument("--shape-n", type=int_at_least(1), default=3,
                    help="breathing: exponent n of cos^2n")
+    p.add_argument("--lung-regions", nargs="+", type=int, metavar="LABEL",
+                   help="breathing: the mesh regions that are lung and change volume (default: "
+                   "regions of mean density < 0.5 g/cm³); all other tissue keeps its volume")
     p.add_argument("--phase-percent", nargs="+", type=float_in(0.0, 100.0),
                    help="phase positions in the cycle [%%] (default 100·k/K)")
     p.add_argument("--method", choices=("l2", "lsq"), default="l2",
@@ -67,7 +70,8 @@ def _add_deform_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--poisson", type=float_in(0.0, 0.4999), default=0.45,
                    help="FEM Poisson's ratio")
     p.add_argument("-o", "--output", required=True, type=Path,
-                   help="output folder: one VTU per phase + phases.pvd + mass_report.csv "
+                   help="output folder: one VTU per phase + phases.pvd + mass_report.csv + "
+                   "volume_report.csv (ΔV/V per region) "
                    "(with --4dct also dvf/: the fields and register.json)")
     from tetdose.cli._register import add_registration_args
 
@@ -98,6 +102,9 @@ def _motion_series(args: argparse.Namespace, reference: TetMesh, out_dir: Path) 
 
     pct = args.phase_percent
     dvfs = args.dvf
+    if args.lung_regions and not args.breathing:
+        raise OptionError("--lung-regions applies to --breathing only; the other motion sources "
+                          "bring their own motion")
     if args.ct4d:
         if args.reference is None:
             raise OptionError("--4dct needs --reference PERCENT: the phase the mesh was mapped "
@@ -114,17 +121,19 @@ def _motion_series(args: argparse.Namespace, reference: TetMesh, out_dir: Path) 
                  if args.breathing else None)
     return phase_series(reference, phases=args.phases, dvfs=dvfs, surfaces=args.surfaces,
                         breathing=breathing, n_phases=args.n_phases, phase_percent=pct,
-                        fem=FemOptions(args.increments, args.young_kpa, args.poisson))
+                        fem=FemOptions(args.increments, args.young_kpa, args.poisson),
+                        lung_regions=args.lung_regions)
 
 
 def _run_deform(args: argparse.Namespace) -> int:
-    from tetdose.motion.source import deform, mass_report_csv
+    from tetdose.motion.source import deform, mass_report_csv, volume_report_csv
 
     reference = read_mapped_mesh(args.mesh)
     with atomic_write_dir(args.output) as tmp:
         series, reports = deform(_motion_series(args, reference, tmp), method=args.method)
         series.write(tmp)
         (tmp / "mass_report.csv").write_text(mass_report_csv(series, reports))
+        (tmp / "volume_report.csv").write_text(volume_report_csv(reports))
     for r in reports:
         print(r.line())
     print(f"wrote {series.n_phases} phases ({args.method}) to {args.output}")

@@ -50,8 +50,25 @@ METHODS = SOLVERS
 
 
 @dataclass(frozen=True)
+class RegionVolume:
+    """Volume change of one region in one phase: ΔV/V = V(t)/V(0) − 1 of its tets (min,
+    median, max) and of the region as a whole (``total``)."""
+
+    region: int
+    n_tets: int
+    min: float
+    median: float
+    max: float
+    total: float
+
+    def line(self) -> str:
+        return (f"region {self.region}: ΔV/V {self.total:+.2%} in all (tets {self.min:+.1%} … "
+                f"median {self.median:+.1%} … {self.max:+.1%})")
+
+
+@dataclass(frozen=True)
 class PhaseReport:
-    """Mass and density summary of one phase."""
+    """Mass and density summary of one phase, and the volume change of each region."""
 
     phase_percent: float
     total_mass_g: float
@@ -59,11 +76,28 @@ class PhaseReport:
     min_density_g_cm3: float
     max_density_g_cm3: float
     worst_volume_change: float  # max_k |V_k(t)/V_k(0) − 1|
+    regions: tuple[RegionVolume, ...] = ()
 
     def line(self) -> str:
-        return (f"phase {self.phase_percent:5.1f} %: mass {self.total_mass_g:.9g} g "
+        head = (f"phase {self.phase_percent:5.1f} %: mass {self.total_mass_g:.9g} g "
                 f"(Δ {self.mass_change_rel:+.2e}), density {self.min_density_g_cm3:.4g}…"
                 f"{self.max_density_g_cm3:.4g} g/cm³, worst |ΔV/V| {self.worst_volume_change:.3g}")
+        return "\n".join([head] + ["    " + r.line() for r in self.regions])
+
+
+def region_volumes(reference: TetMesh, phase: TetMesh) -> tuple[RegionVolume, ...]:
+    """ΔV/V per region (one region 0 for an unlabelled mesh) of ``phase`` against ``reference``."""
+    v0, v1 = reference.volumes_mm3, phase.volumes_mm3
+    region = (np.zeros(reference.n_tets, dtype=np.int64) if reference.region is None
+              else reference.region)
+    out = []
+    for label in np.unique(region):
+        sel = region == label
+        rel = v1[sel] / v0[sel] - 1.0
+        out.append(RegionVolume(int(label), int(sel.sum()), float(rel.min()),
+                                float(np.median(rel)), float(rel.max()),
+                                float(v1[sel].sum() / v0[sel].sum() - 1.0)))
+    return tuple(out)
 
 
 def mesh_mass_g(mesh: TetMesh, density_g_cm3: FloatArray) -> float:
@@ -115,5 +149,5 @@ def update_series(series: PhaseSeries, density0_g_cm3: FloatArray | None = None,
         reports.append(PhaseReport(
             float(series.phase_percent[k]), mass, (mass - m0) / m0 if m0 else 0.0,
             float(rho.min()), float(rho.max()),
-            float(np.abs(phase.volumes_mm3 / v0 - 1.0).max())))
+            float(np.abs(phase.volumes_mm3 / v0 - 1.0).max()), region_volumes(ref, phase)))
     return series.with_density(np.stack(rhos)), reports

@@ -31,6 +31,9 @@ from tetdose.motion.phases import PhaseSeries
 
 PathLike = str | os.PathLike[str]
 
+#: Columns of the volume report, one row per phase and region (ΔV/V = V(t)/V(0) − 1).
+VOLUME_REPORT_COLUMNS = ("phase_percent", "region", "n_tets", "volume_change_total",
+                         "volume_change_min", "volume_change_median", "volume_change_max")
 #: Columns of the mass report, one row per phase (units in the names).
 MASS_REPORT_COLUMNS = ("phase_percent", "time_weight", "total_mass_g", "mass_change_rel",
                        "min_density_g_cm3", "max_density_g_cm3", "worst_volume_change")
@@ -50,12 +53,15 @@ def phase_series(reference: TetMesh, *, phases: Sequence[PathLike] | None = None
                  surfaces: Sequence[PathLike] | None = None,
                  breathing: BreathingModel | None = None, n_phases: int = 10,
                  phase_percent: Sequence[float] | None = None,
-                 fem: FemOptions = FemOptions()) -> PhaseSeries:  # noqa: B008 - frozen
+                 fem: FemOptions = FemOptions(),  # noqa: B008 - frozen
+                 lung_regions: Sequence[int] | None = None) -> PhaseSeries:
     """The phases of ``reference`` moved by exactly one source (module docstring).
 
     ``phase_percent``: position of each phase in the cycle [%] (default 100·k/K; the breathing
-    model places its ``n_phases`` phases itself). Raises :class:`~tetdose.errors.OptionError`
-    unless exactly one source is given, and the reference's checks' errors (module docstring).
+    model places its ``n_phases`` phases itself; ``lung_regions``: its lung labels, default found
+    from the reference density, :func:`~tetdose.motion.breathing.lung_tets`). Raises
+    :class:`~tetdose.errors.OptionError` unless exactly one source is given, and the
+    reference's checks' errors (module docstring).
     """
     given = [name for name, value in (("phases", phases), ("dvfs", dvfs),
                                       ("surfaces", surfaces), ("breathing", breathing))
@@ -65,7 +71,7 @@ def phase_series(reference: TetMesh, *, phases: Sequence[PathLike] | None = None
                           f"surfaces or the breathing model), got {given or 'none'}")
     check_reference(reference)
     if breathing is not None:
-        return breathing.series(reference, n_phases)
+        return breathing.series(reference, n_phases, lung_regions=lung_regions)
     if phases is not None:
         return PhaseSeries.read(reference, list(phases), phase_percent=phase_percent)
     if dvfs is not None:
@@ -103,4 +109,15 @@ def mass_report_csv(series: PhaseSeries, reports: Sequence[PhaseReport]) -> str:
         values = (r.phase_percent, w, r.total_mass_g, r.mass_change_rel, r.min_density_g_cm3,
                   r.max_density_g_cm3, r.worst_volume_change)
         rows.append(",".join(repr(float(v)) for v in values))
+    return "\n".join(rows) + "\n"
+
+
+def volume_report_csv(reports: Sequence[PhaseReport]) -> str:
+    """Per-region volume change as CSV text (:data:`VOLUME_REPORT_COLUMNS`, one row per phase and
+    region)."""
+    rows = [",".join(VOLUME_REPORT_COLUMNS)]
+    for r in reports:
+        for v in r.regions:
+            rows.append(",".join([repr(float(r.phase_percent)), str(v.region), str(v.n_tets)]
+                                 + [repr(x) for x in (v.total, v.min, v.median, v.max)]))
     return "\n".join(rows) + "\n"
