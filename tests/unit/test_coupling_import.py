@@ -14,7 +14,7 @@ from tetdose.core.overlap import compute_overlap
 from tetdose.coupling.import_dose import import_doses, phase_dose
 from tetdose.coupling.tally_csv import TetTally, read_tally_csv, write_tally_csv
 from tetdose.coupling.threeddose import read_3ddose, write_3ddose
-from tetdose.errors import DoseError, GeometryMismatchError, ImageError
+from tetdose.errors import DoseError, GeometryMismatchError, ImageError, OptionError
 from tetdose.motion.phases import PhaseSeries
 
 from helpers import box_mesh, grid_for
@@ -146,3 +146,29 @@ def test_accumulated_dose_is_the_phase_energy_over_the_mesh_mass(phase_mesh, tmp
     want_std = np.sqrt(((w[:, None] * 0.1 * energy * J_PER_MEV) ** 2).sum(0)) / (
         w[:, None] * m).sum(0)
     np.testing.assert_allclose(res.accumulated.dose_std_gy, want_std, rtol=1e-9)
+
+
+def test_doses_pair_with_phases_by_the_numbers_in_their_names(phase_mesh, tmp_path):
+    """Issue 27: ``phase_002.csv phase_000.csv phase_001.csv`` was paired by argument order
+    (per-phase doses ×3.03, ×0.50, ×0.67); the names say the phase."""
+    pts = phase_mesh.points_mm[None] + np.array([[0, 0, 0], [0.5, 0, 0], [1.0, 0, 0]])[:, None]
+    rho = np.repeat(phase_mesh.point_data["density"][None], 3, axis=0)
+    series = PhaseSeries(phase_mesh, pts, density_g_cm3=rho)
+    energy = [np.full(phase_mesh.n_tets, e) for e in (1.0, 2.0, 3.0)]  # MeV per tet, phase k
+    files = [write_tally_csv(tmp_path / f"phase_{k:03d}.csv", TetTally("energy", energy[k], None))
+             for k in range(3)]
+    res = import_doses(series, [files[2], files[0], files[1]])
+    assert [p.source for p in res.phases] == [str(f) for f in files]
+    for k in range(3):  # phase k got its own energy: dose = E / m per tet
+        want = energy[k] * J_PER_MEV / (tet_mass_g(series.mesh(k)) / 1000.0)
+        np.testing.assert_allclose(res.phases[k].dose_gy, want, rtol=1e-12)
+    by_pct = [write_tally_csv(tmp_path / f"d_{p}%.csv", TetTally("energy", energy[k], None))
+              for k, p in enumerate(("0", "33.3", "66.7"))]  # percentages in the names
+    res = import_doses(series, by_pct[::-1])
+    assert [p.source for p in res.phases] == [str(f) for f in by_pct]
+    bad = {"carries no phase number": [files[0], files[1], tmp_path / "other.csv"],
+           "both name phase 1": [files[0], files[1], files[1]],
+           "neither the phases' percentages": [files[0], files[1], tmp_path / "phase_007.csv"]}
+    for message, given in bad.items():
+        with pytest.raises(OptionError, match=message):
+            import_doses(series, given)

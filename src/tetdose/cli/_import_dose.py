@@ -13,6 +13,7 @@ import numpy as np
 from tetdose.cli._common import add_calibration_arg, calibration_from, check_output
 from tetdose.core.image import Image
 from tetdose.core.io import read_ct, read_image
+from tetdose.core.phase_names import order_by_names
 from tetdose.coupling.dose_files import KINDS, dose_kind
 from tetdose.coupling.export import exported_densities
 from tetdose.coupling.import_dose import DEFAULT_UNIT, import_doses, write_imported
@@ -24,9 +25,11 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--phases", type=Path, required=True,
                    help="folder written by `tetdose deform` (phase VTUs with density + phases.pvd)")
     p.add_argument("--dose", type=Path, nargs="+", required=True, metavar="FILE",
-                   help="one dose per phase, in phase order (or one folder holding them, taken "
-                        "in name order): per-tet tally .csv (tet or element, energy_mev or "
-                        "dose_gy, sigma), EGSnrc .3ddose, DICOM RT Dose, .nrrd/.mha/.nii.gz")
+                   help="one dose per phase (or one folder holding them), paired with the "
+                        "phases by the phase number in the names (phase_020.0, 20%%, phase index "
+                        "from 0) when they carry one, else in the given order: per-tet tally "
+                        ".csv (tet or element, energy_mev or dose_gy, sigma), EGSnrc .3ddose, "
+                        "DICOM RT Dose, .nrrd/.mha/.nii.gz")
     p.add_argument("--exported", type=Path,
                    help="the `tetdose export-phases` folder the code ran on: per-tet doses [Gy] "
                         "are turned into energy with its binned masses")
@@ -66,11 +69,13 @@ def run(args: argparse.Namespace) -> int:
         raise OptionError(f"{len(files)} dose files for {series.n_phases} phases; give one per "
                           "phase, in phase order")
     kinds = [dose_kind(f) for f in files]
-    densities = [read_image(f) for f in args.density] if args.density else None
+    pct = series.phase_percent
+    densities = ([read_image(f) for f in order_by_names(args.density, pct, "--density")]
+                 if args.density else None)
     if args.ct:
         cal = calibration_from(args)
         densities = [Image(cal.density(ct.array).astype(np.float64), ct.grid)
-                     for ct in map(read_ct, args.ct)]
+                     for ct in map(read_ct, order_by_names(args.ct, pct, "--ct"))]
     binned = (exported_densities(args.exported, series.reference.n_tets)
               if args.exported else None)
     result = import_doses(series, files, densities=densities, binned_densities=binned,

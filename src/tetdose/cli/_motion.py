@@ -95,6 +95,7 @@ def _add_4dct_args(p: argparse.ArgumentParser) -> None:
 def _motion_series(args: argparse.Namespace, reference: TetMesh, out_dir: Path) -> PhaseSeries:
     """The source the options name (``--4dct``: registered into ``out_dir/dvf`` first)."""
     from tetdose.cli._register import print_reports, register_to
+    from tetdose.core.phase_names import percents_from_names
     from tetdose.errors import OptionError, TetdoseError
     from tetdose.motion import BreathingModel
     from tetdose.motion.dvf_folder import percents_of
@@ -117,9 +118,14 @@ def _motion_series(args: argparse.Namespace, reference: TetMesh, out_dir: Path) 
         pct = percents if pct is None else pct
     elif dvfs and pct is None:
         pct = percents_of(list(dvfs))
+    phases = args.phases
+    if pct is None and dvfs and not args.ct4d:
+        dvfs, pct = percents_from_names(dvfs, "--dvf")
+    elif pct is None and phases:
+        phases, pct = percents_from_names(phases, "--phases")
     breathing = (BreathingModel(args.amplitude_mm, args.period_s, args.shape_n)
                  if args.breathing else None)
-    return phase_series(reference, phases=args.phases, dvfs=dvfs, surfaces=args.surfaces,
+    return phase_series(reference, phases=phases, dvfs=dvfs, surfaces=args.surfaces,
                         breathing=breathing, n_phases=args.n_phases, phase_percent=pct,
                         fem=FemOptions(args.increments, args.young_kpa, args.poisson),
                         lung_regions=args.lung_regions)
@@ -143,12 +149,14 @@ def _run_deform(args: argparse.Namespace) -> int:
 def _run_4dct(args: argparse.Namespace) -> int:
     from tetdose.cli._common import check_output
     from tetdose.core.io import read_ct, read_image
+    from tetdose.core.phase_names import order_by_names
     from tetdose.motion import PhaseSeries, read_dvf
     from tetdose.motion.ct4d import virtual_4dct, write_4dct
 
     check_output(args, folder=True)
     series = PhaseSeries.read(None, args.phases)
-    dvfs = None if args.dvf is None else [read_dvf(f) for f in args.dvf]
+    dvfs = None if args.dvf is None else [
+        read_dvf(f) for f in order_by_names(args.dvf, series.phase_percent, "--dvf")]
     ct = read_ct(args.like) if args.background == "ct" or dvfs else read_image(args.like)
     images = virtual_4dct(series, ct, background=args.background, dvfs=dvfs, partial=args.partial,
                           progress=not args.quiet)

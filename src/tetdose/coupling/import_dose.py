@@ -45,6 +45,7 @@ from tetdose.core.io import write_image, write_mesh
 from tetdose.core.mass import mass_g, tet_mass_g
 from tetdose.core.mesh import TetMesh
 from tetdose.core.overlap import Overlap
+from tetdose.core.phase_names import order_by_names
 from tetdose.core.voxelize import voxelize
 from tetdose.coupling.dose_files import check_dose_values, dose_kind, read_voxel_dose
 from tetdose.coupling.export import phase_stem
@@ -166,13 +167,18 @@ def import_doses(series: PhaseSeries, paths: Sequence[str | os.PathLike[str]], *
                  densities: Sequence[Image] | None = None,
                  binned_densities: Sequence[FloatArray] | None = None,
                  unit: str = DEFAULT_UNIT) -> ImportedDose4D:
-    """One dose file per phase of ``series`` (in phase order) → per-tet doses, accumulated."""
+    """One dose file per phase of ``series`` → per-tet doses, accumulated.
+
+    The files are paired with the phases by the phase numbers in their names where the names
+    carry them (:func:`tetdose.core.phase_names.order_by_names`), else taken in phase order.
+    """
     n = series.n_phases
     for what, items in (("dose files", paths), ("density images", densities),
                         ("exported phases", binned_densities)):
         if items is not None and len(items) != n:
             raise OptionError(f"{len(items)} {what} for {n} phases; give one per phase, in "
                               "phase order")
+    paths = order_by_names(list(map(Path, paths)), series.phase_percent, "dose files")
     if series.density_g_cm3 is None:
         raise OptionError("the phases carry no density; run `tetdose deform` (the density "
                           "update) before importing doses onto them")
