@@ -144,3 +144,32 @@ def test_empty_folder_and_missing_path(tmp_path):
         read_4dct(tmp_path / "e")
     with pytest.raises(ImageError, match="does not exist"):
         read_4dct(tmp_path / "nope")
+
+
+def test_image_files_with_a_name_without_percent_or_twice_are_refused(tmp_path):
+    """Issue 27: one name without a % dropped every percentage (phase_050 became the 0 %
+    reference); a duplicated file did the same."""
+    images = phases(3)
+    files = [write_image(tmp_path / n, im) for n, im in
+             zip(["phase_050.0.nrrd", "phase_000.0.nrrd", "ref.nrrd"], images, strict=True)]
+    with pytest.raises(tetdose.errors.OptionError, match="ref.nrrd carries no phase number while"):
+        read_4dct(files)
+    with pytest.raises(ImageError, match="phase_000.0.nrrd is given twice"):
+        read_4dct([files[0], files[1], files[1]])
+    copy = shutil.copy(files[1], tmp_path / "ct_0%.nrrd")
+    with pytest.raises(tetdose.errors.OptionError, match="both name phase 0"):
+        read_4dct([files[0], files[1], copy])
+    got = read_4dct(files[:2])  # the names' percentages: 0 % first
+    assert_phases(got, [images[1], images[0]], [0.0, 50.0])
+
+
+def test_series_mixing_percent_and_no_percent_descriptions_are_refused(tmp_path):
+    write_ct_series_4d(phases(3), tmp_path / "a", phase_percent=[0.0, 25.0, 50.0])
+
+    def average(ds):
+        if ds.SeriesDescription == "4D-CT 50%":
+            ds.SeriesDescription = "AVG"
+
+    _rewrite(tmp_path / "a", average)
+    with pytest.raises(ImageError, match="series 'AVG' .* has no phase percentage"):
+        read_4dct(tmp_path / "a")

@@ -54,6 +54,23 @@ def name_numbers(paths: Sequence[Path]) -> list[float | None]:
     return found
 
 
+_FIX = ("name every file by its phase (phase_020.0, 20%, or the phase index from 0) or none "
+        "of them (then they are taken in the given order)")
+
+
+def _check_numbers(paths: Sequence[Path], numbers: Sequence[float | None], what: str) -> None:
+    """OptionError when only some names carry a number, or two carry the same."""
+    if any(n is None for n in numbers):
+        bare = paths[list(numbers).index(None)]
+        named = paths[next(i for i, n in enumerate(numbers) if n is not None)]
+        raise OptionError(f"{what}: {bare.name} carries no phase number while {named.name} does; "
+                          f"{_FIX}")
+    for i, n in enumerate(numbers):
+        if n in numbers[:i]:
+            raise OptionError(f"{what}: {paths[list(numbers).index(n)].name} and {paths[i].name} "
+                              f"both name phase {n:g}; give one file per phase")
+
+
 def order_by_names(paths: Sequence[Path], percents: Sequence[float], what: str) -> list[Path]:
     """``paths`` in the order of the phases at ``percents`` [%], by the numbers in their names
     (module docstring); the given order when no name carries one. OptionError on contradictions."""
@@ -61,17 +78,7 @@ def order_by_names(paths: Sequence[Path], percents: Sequence[float], what: str) 
     numbers = name_numbers(paths)
     if all(n is None for n in numbers) or len(paths) != len(percents):
         return paths
-    fix = ("name every file by its phase (phase_020.0, 20%, or the phase index from 0) or none "
-           "of them (then they are taken in the given order)")
-    if any(n is None for n in numbers):
-        bare = paths[numbers.index(None)]
-        named = paths[next(i for i, n in enumerate(numbers) if n is not None)]
-        raise OptionError(f"{what}: {bare.name} carries no phase number while {named.name} does; "
-                          f"{fix}")
-    for i, n in enumerate(numbers):
-        if n in numbers[:i]:
-            raise OptionError(f"{what}: {paths[numbers.index(n)].name} and {paths[i].name} both "
-                              f"name phase {n:g}; give one file per phase")
+    _check_numbers(paths, numbers, what)
     pct = np.asarray(percents, dtype=np.float64)
     got = np.asarray(numbers, dtype=np.float64)
     match = np.abs(got[:, None] - pct[None, :]) <= PERCENT_TOL
@@ -84,7 +91,7 @@ def order_by_names(paths: Sequence[Path], percents: Sequence[float], what: str) 
         raise OptionError(
             f"{what}: the numbers in the names ({', '.join(f'{n:g}' for n in numbers)}; e.g. "
             f"{stray}) are neither the phases' percentages ({', '.join(f'{p:g}' for p in pct)} "
-            f"%) nor their indices 0…{len(paths) - 1}; {fix}")
+            f"%) nor their indices 0…{len(paths) - 1}; {_FIX}")
     ordered: list[Path] = [Path()] * len(paths)
     for i, k in enumerate(slot):
         ordered[int(k)] = paths[i]
@@ -99,6 +106,7 @@ def percents_from_names(paths: Sequence[Path], what: str) -> tuple[list[Path], l
     numbers = name_numbers(paths)
     if all(n is None for n in numbers):
         return paths, None
+    _check_numbers(paths, numbers, what)
     k = len(paths)
     if set(numbers) == set(range(k)):
         return order_by_names(paths, [100.0 * i / k for i in range(k)], what), None

@@ -16,8 +16,10 @@ trust, that every series has with distinct values:
 
 The phase percentage [% of the breathing cycle] is the one in ``SeriesDescription`` when every
 series has one, else 100·r/K for rank r of K phases. Image files (NRRD, MHA, NIfTI …; a list, or
-a folder holding only such files) are ordered by the percentage in their names (``phase_020.0``,
-``20%``), else kept in the given (for a folder: name) order with 100·r/K.
+a folder holding only such files) are ordered by the phase numbers in their names
+(``phase_020.0``, ``20%``; 0…K−1 read as indices), else kept in the given (for a folder: name)
+order with 100·r/K; names of which only some carry a number, two names of one phase, and a file
+given twice are refused.
 """
 
 from __future__ import annotations
@@ -34,6 +36,7 @@ import numpy as np
 
 from tetdose.core.image import Image
 from tetdose.core.io import read_ct, read_dicom_files
+from tetdose.core.phase_names import percents_from_names
 from tetdose.dicom.identity import check_identities, identity_of_header
 from tetdose.errors import ImageError
 
@@ -45,7 +48,6 @@ _TAGS = ["SOPClassUID", "Modality", "SeriesInstanceUID", "SeriesDescription", "S
          "ImagePositionPatient", "ImageOrientationPatient", "Rows", "Columns", "PixelSpacing",
          "PatientID", "FrameOfReferenceUID", "StudyInstanceUID"]
 _PERCENT = re.compile(r"(\d+(?:\.\d+)?)\s*%")
-_PHASE_NAME = re.compile(r"(?:phase|ph)[_\- ]?(\d+(?:\.\d+)?)", re.IGNORECASE)
 #: Largest distance [%] between a requested phase and a phase of the 4D-CT.
 PERCENT_TOL = 0.5
 
@@ -145,6 +147,12 @@ def _scan(folder: Path) -> tuple[list[_Series], list[Path]]:
 def _from_series(folder: Path, series: list[_Series]) -> list[Phase4D]:
     check_identities([[identity_of_header(s.headers[0], folder, f"{s.label} in {folder}")
                        for s in series]])  # one patient, one frame, one study (or allowed)
+    found = [_PERCENT.search(s.description) is not None for s in series]
+    if any(found) and not all(found):
+        bare, named = series[found.index(False)], series[found.index(True)]
+        raise ImageError(f"{folder}: {bare.label} has no phase percentage in its "
+                         f"SeriesDescription while {named.label} has; remove series that are no "
+                         "phase (average, MIP) from the folder, or give one image file per phase")
     order, how = _phase_order(folder, series)
     series = [series[i] for i in order]
     percents = _description_percents(series)
@@ -225,23 +233,19 @@ def _earliest_time(s: _Series) -> float | None:
 
 
 def _from_files(files: list[Path], *, sort_names: bool) -> list[Phase4D]:
+    """Phases ordered by the numbers in the names (:func:`~tetdose.core.phase_names.
+    percents_from_names`: percentages, or indices 0…K−1), else in the given order at 100·r/K;
+    a file given twice, or names of which only some carry a number, are refused."""
     if sort_names:
         files = sorted(files, key=lambda f: f.name)
-    percents = [_name_percent(f) for f in files]
-    if any(p is None for p in percents) or len(set(percents)) != len(percents):
+    seen: dict[Path, Path] = {}
+    for f in files:
+        if (key := f.resolve()) in seen:
+            raise ImageError(f"4D-CT phase file {f} is given twice (also as {seen[key]}); give "
+                             "each phase once")
+        seen[key] = f
+    files, percents = percents_from_names(files, "4D-CT phase files")
+    if percents is None:
         percents = [100.0 * r / len(files) for r in range(len(files))]
-    else:
-        order = np.argsort(percents, kind="stable")
-        files, percents = [files[i] for i in order], [percents[i] for i in order]
-    return [Phase4D(read_ct(f), float(p), str(f))  # type: ignore[arg-type]
+    return [Phase4D(read_ct(f), float(p), str(f))
             for f, p in zip(files, percents, strict=True)]
-
-
-def _name_percent(path: Path) -> float | None:
-    name = path.name
-    for suffix in IMAGE_SUFFIXES:
-        if name.lower().endswith(suffix):
-            name = name[: -len(suffix)]
-            break
-    m = _PERCENT.search(name) or _PHASE_NAME.search(name)
-    return None if m is None else float(m.group(1))
