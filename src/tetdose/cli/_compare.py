@@ -91,7 +91,8 @@ def _run_compare(args: argparse.Namespace) -> int:
     density = None
     if args.ct is not None:
         ct = read_ct(args.ct)
-        density = ct.with_array(calibration_from(args).density(ct.array).astype(float))
+        density = ct.with_array(calibration_from(args).density_checked(
+            ct.array, f"the CT {args.ct}")[0].astype(float))
     result = compare_doses(mesh, dose, voxel, structures=masks, reference=args.reference,
                            threshold_percent=args.threshold,
                            gamma_max_points=args.gamma_max_points,

@@ -249,9 +249,11 @@ def run(args: argparse.Namespace) -> int:
     if args.ct is not None:
         ct = read_ct(args.ct)
         cal = calibration_from(args)
-        density = ct.with_array(cal.density(ct.array).astype(np.float64))
+        rho, beyond = cal.density_checked(ct.array, f"the CT {args.ct}")
+        density = ct.with_array(rho.astype(np.float64))
         labels = read_labels(args.labels) if args.labels else None
-        extra.update(ct=str(args.ct), calibration=cal.name)
+        extra.update(ct=str(args.ct), calibration=cal.name,
+                     hu_beyond_calibration=beyond.as_dict())
     if args.engine == "ompmc":
         return _run_ompmc(args, plan, settings, mesh, density, labels, extra, progress)
     world = World(mesh=mesh, density=density, labels=labels)

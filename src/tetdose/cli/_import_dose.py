@@ -74,7 +74,7 @@ def run(args: argparse.Namespace) -> int:
                  if args.density else None)
     if args.ct:
         cal = calibration_from(args)
-        densities = [Image(cal.density(ct.array).astype(np.float64), ct.grid)
+        densities = [Image(cal.density_checked(ct.array)[0].astype(np.float64), ct.grid)
                      for ct in map(read_ct, order_by_names(args.ct, pct, "--ct"))]
     binned = (exported_densities(args.exported, series.reference.n_tets)
               if args.exported else None)

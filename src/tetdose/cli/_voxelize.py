@@ -41,7 +41,7 @@ def run(args: argparse.Namespace) -> int:
     background: str | float | Image = args.background
     if args.background == "ct":
         like = check_ct_hu(like, f"--like {args.like} (used as --background ct)")
-        background = like.with_array(cal.density(like.array))
+        background = like.with_array(cal.density_checked(like.array, f"the CT {args.like}")[0])
     img = voxelize(mesh, mesh.point_data["density"], like.grid, background=background,
                    partial=args.partial, progress=not args.quiet)
     if args.hu:

@@ -10,13 +10,20 @@ monotonic (1.1199 g/cm³ at 100 HU, 1.0762 at 101 HU): we return the **lowest HU
 density reaches ρ**, ``HU(ρ) = min{h : f(h) ≥ ρ}``. Then ``f(HU(ρ)) = ρ`` for every ρ in range,
 and ``HU(f(h)) = h`` wherever the curve is increasing and not overtaken by an earlier part of it
 (for the default table: every HU except 101…~175, which map back onto 23…100).
+
+**Beyond the table.** :meth:`HUCalibration.range_report` counts the voxels below the first and
+above the last node and what they became; :meth:`HUCalibration.density_checked` warns
+(``warnings.warn``) when any lies above the last node — a metal implant (titanium ≈ 4.5 g/cm³,
+steel ≈ 8 g/cm³, thousands of HU beyond 3000) would silently become the last node's bone. Values
+below the first node (air padding such as −1024 or −3024 HU) become air and are only counted.
 """
 
 from __future__ import annotations
 
 import csv
 import os
-from dataclasses import dataclass
+import warnings
+from dataclasses import asdict, dataclass
 
 import numpy as np
 
@@ -35,6 +42,32 @@ SCHNEIDER_2000 = (
     (1600.0, 1.9642),
     (3000.0, 2.8),
 )
+
+
+@dataclass(frozen=True)
+class RangeReport:
+    """Voxels beyond a calibration's table: counts, extreme HU, and the densities they got."""
+
+    calibration: str
+    table_hu: tuple[float, float]
+    n_below: int
+    n_above: int
+    lowest_hu: float
+    highest_hu: float
+    density_below_g_cm3: float
+    density_above_g_cm3: float
+
+    def as_dict(self) -> dict[str, object]:
+        return asdict(self)
+
+    def message(self, what: str) -> str:
+        """One line for a warning about the voxels above the table."""
+        return (f"{what}: {self.n_above} voxels lie above the calibration's last node "
+                f"({self.table_hu[1]:g} HU, up to {self.highest_hu:g} HU) and became "
+                f"{self.density_above_g_cm3:g} g/cm³ of the density-class material ({self.n_below} "
+                f"below {self.table_hu[0]:g} HU became {self.density_below_g_cm3:g} g/cm³); metal "
+                "is neither: give --calibration a CSV extending the table to the insert's HU with "
+                "its density (titanium ≈ 4.5, steel ≈ 8 g/cm³), or mask the artefact")
 
 
 @dataclass(frozen=True, eq=False)
@@ -106,6 +139,24 @@ class HUCalibration:
         return np.interp(np.asarray(hu, dtype=np.float64), self.hu, self.density_g_cm3)
 
     __call__ = density
+
+    def range_report(self, hu: np.ndarray) -> RangeReport:
+        """How many values of ``hu`` lie below the first / above the last node."""
+        a = np.asarray(hu)
+        lo, hi = self.hu[0], self.hu[-1]
+        return RangeReport(self.name, (float(lo), float(hi)), int(np.count_nonzero(a < lo)),
+                           int(np.count_nonzero(a > hi)), float(a.min()) if a.size else lo,
+                           float(a.max()) if a.size else hi, float(self.density_g_cm3[0]),
+                           float(self.density_g_cm3[-1]))
+
+    def density_checked(self, hu: np.ndarray, what: str = "the CT"
+                        ) -> tuple[np.ndarray, RangeReport]:
+        """:meth:`density` and the :class:`RangeReport`, warning when voxels lie above the table
+        (see the module docstring)."""
+        report = self.range_report(hu)
+        if report.n_above:
+            warnings.warn(report.message(what), stacklevel=2)
+        return self.density(hu), report
 
     def hu_of(self, density_g_cm3: np.ndarray | float) -> np.ndarray:
         """Inverse: the lowest HU whose density reaches ``density_g_cm3`` (see module doc)."""

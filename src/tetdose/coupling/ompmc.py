@@ -486,7 +486,7 @@ def simulate_ompmc_on_mesh(density: Image, mesh: TetMesh, plan: Plan,
     """(mesh result, voxel result) of :func:`simulate_ompmc` with a mesh: the voxel run and its
     energy put on the tets by :func:`tetdose.coupling.onto_mesh.result_onto_mesh`."""
     if calibration is not None:
-        density = density.with_array(calibration.density(density.array).astype(np.float64))
+        density = density.with_array(calibration.density_checked(density.array)[0].astype(np.float64))
     voxel = _simulate(density, plan, settings, None, labels, options, mesh, progress)
     return result_onto_mesh(voxel, density, mesh), voxel
 
@@ -499,7 +499,7 @@ def _simulate(density: Image, plan: Plan, settings: TransportSettings,
     om = ompmc_module()
     options = options or OmpmcOptions()
     if calibration is not None:
-        density = density.with_array(calibration.density(density.array).astype(np.float64))
+        density = density.with_array(calibration.density_checked(density.array)[0].astype(np.float64))
     plan.require_resolved()
     world = ompmc_world(density, plan, options, labels)
     pegs = pegs_path(options.pegs)

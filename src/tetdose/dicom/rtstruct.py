@@ -15,10 +15,11 @@ polygon of that slice with the even–odd (crossing number) rule and the results
 contour inside another one is a hole (PS3.3 C.8.8.6.3). The test is a vectorized scanline
 crossing count (:func:`even_odd_fill`), checked against matplotlib's point-by-point
 ``Path.contains_points`` in the tests. When a slab holds several contour planes (grid coarser
-than the contour spacing), the plane nearest the slice centre is used. Slices between contour
-planes are **not interpolated**: a slice whose slab holds no contour plane stays empty (a warning
-says so when that happens inside a structure's extent, i.e. the grid is finer than the contour
-spacing).
+than the contour spacing), the plane nearest the slice centre is used. Slices between two
+contour planes with no contour of their own (a structure contoured on every second or third
+slice, or a grid finer than the contour spacing) are **interpolated** shape-based (signed
+distance maps of the two planes' masks, linear along the slice axis) when the run is at most
+:data:`MAX_GAP_SLICES` slices; longer runs stay empty, with a warning.
 """
 
 from __future__ import annotations
@@ -36,6 +37,9 @@ from tetdose.errors import DicomError, GeometryMismatchError
 
 #: Contour types that enclose an area (C.8.8.6.1; CLOSED_PLANAR_XOR since 2020).
 CLOSED_TYPES = ("CLOSED_PLANAR", "CLOSED_PLANAR_XOR")
+#: Largest run of empty slices [slices] between two contour planes that is interpolated (a
+#: structure contoured on every second or third slice); longer runs stay empty, with a warning.
+MAX_GAP_SLICES = 2
 #: Default largest out-of-plane spread of one contour, as a fraction of the slice spacing.
 PLANE_TOL_FRACTION = 0.25
 
@@ -170,7 +174,28 @@ def structure_mask(structure: Structure, grid: ImageGrid, *, plane_tol_mm: float
             rows = even_odd_fill(poly, grid.spacing_mm[:2], grid.size[:2])
             if rows is not None:
                 mask[k, rows[0]:rows[0] + len(rows[1])] ^= rows[1]
+    _interpolate_gaps(mask, sorted(planes), grid.spacing_mm[:2])
     return mask
+
+
+def _interpolate_gaps(mask: BoolArray, ks: Sequence[int], spacing_mm: FloatArray) -> None:
+    """Fill slices between two contour planes ≤ :data:`MAX_GAP_SLICES` apart by shape-based
+    interpolation (Herman, Zheng & Bucholtz, IEEE CG&A 12(3), 1992): the signed in-plane distance
+    d = dist(outside) − dist(inside) [mm] of the two planes' masks, linear in z, inside where < 0."""
+    from scipy.ndimage import distance_transform_edt
+
+    def signed(m: BoolArray) -> FloatArray:
+        return (distance_transform_edt(~m, sampling=spacing_mm[::-1])
+                - distance_transform_edt(m, sampling=spacing_mm[::-1]))
+
+    for k0, k1 in zip(ks[:-1], ks[1:], strict=True):
+        gap = k1 - k0
+        if gap < 2 or gap - 1 > MAX_GAP_SLICES or not (mask[k0].any() and mask[k1].any()):
+            continue
+        d0, d1 = signed(mask[k0]), signed(mask[k1])
+        for k in range(k0 + 1, k1):
+            t = (k - k0) / gap
+            mask[k] = (1.0 - t) * d0 + t * d1 < 0.0
 
 
 def even_odd_fill(polygon_mm: FloatArray, spacing_mm: FloatArray, size: Sequence[int]
@@ -239,10 +264,11 @@ def _planes_on_grid(structure: Structure, grid: ImageGrid, plane_tol_mm: float |
         warnings.warn(f"structure {structure.name!r}: {off} contour planes or contours reach "
                       "beyond the grid; the mask holds only the part on the grid", stacklevel=4)
     ks = sorted(chosen)
-    gaps = (ks[-1] - ks[0] + 1) - len(ks)
-    if gaps:
+    steps = np.diff(ks) - 1
+    if np.any(steps > MAX_GAP_SLICES):
         warnings.warn(
-            f"structure {structure.name!r}: {gaps} slices between its first and last contour "
-            "planes hold no contour (grid finer than the contour spacing); they are left empty, "
-            "not interpolated", stacklevel=4)
+            f"structure {structure.name!r}: {int(steps[steps > MAX_GAP_SLICES].sum())} slices "
+            f"between its contour planes lie in runs of more than {MAX_GAP_SLICES} slices without "
+            "a contour; they are left empty, not interpolated (contour those slices, or "
+            "rasterize on a coarser grid)", stacklevel=4)
     return {k: by_plane[z] for k, z in chosen.items()}

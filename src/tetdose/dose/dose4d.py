@@ -201,7 +201,8 @@ def _bodies(series: PhaseSeries, ct_hu: Image | None, phase_ct: list[Image] | No
     """The density [g/cm³] of every phase's body (module docstring)."""
     cal = calibration or HUCalibration.schneider2000()
     if phase_ct is not None:
-        return [Image(cal.density(ct.array).astype(np.float64), ct.grid) for ct in phase_ct]
+        return [Image(cal.density_checked(ct.array, f"4D-CT phase {k}")[0].astype(np.float64),
+                      ct.grid) for k, ct in enumerate(phase_ct)]
     return phase_densities(series, ct_hu, calibration=cal, dvfs=dvfs, progress=progress)
 
 

@@ -84,7 +84,7 @@ def map_density(mesh: TetMesh, ct_hu: Image, *, calibration: HUCalibration | Non
     ov = compute_overlap(mesh, ct_hu.grid, method=overlap, n_samples=n_samples, seed=seed,
                          progress=progress)
     outside = warn_if_uncovered(mesh, ov)
-    rho_vox = calibration.density(ct_hu.array).ravel()
+    rho_vox = calibration.density_checked(ct_hu.array, "the CT around the mesh")[0].ravel()
     pair_rho = rho_vox[ov.voxel]
     covered = ov.covered_volume_per_tet_mm3()
     ct_mass_tet = np.bincount(ov.tet, weights=ov.volume_mm3 * pair_rho,

@@ -78,7 +78,7 @@ def evaluate(ct_hu: Image, mesh: TetMesh, density_g_cm3: np.ndarray, *,
     calibration = calibration or HUCalibration.schneider2000()
     grid = ct_hu.grid
     ov = overlap if overlap is not None else compute_overlap(mesh, grid)
-    original = ct_hu.with_array(calibration.density(ct_hu.array))
+    original = ct_hu.with_array(calibration.density_checked(ct_hu.array)[0])
     recon = voxelize(mesh, density_g_cm3, grid, background=original, partial="mass", overlap=ov)
     cover = ov.covered_volume_per_voxel_mm3().reshape(grid.shape) / grid.voxel_volume_mm3
     mask = (cover >= ROI_MIN_COVER) if roi is None else np.asarray(roi, dtype=bool)

@@ -62,7 +62,7 @@ def phase_densities(series: PhaseSeries, ct_hu: Image, *,
     if dvfs is not None and len(dvfs) != series.n_phases:
         raise TetdoseError(f"{len(dvfs)} DVFs for {series.n_phases} phases; give one per phase")
     cal = calibration or HUCalibration.schneider2000()
-    ct_density = Image(cal.density(ct_hu.array), ct_hu.grid)
+    ct_density = Image(cal.density_checked(ct_hu.array)[0], ct_hu.grid)
     images = []
     for k in tqdm(range(series.n_phases), desc="4D-CT phases", disable=not progress):
         bg = _background(background, ct_density, None if dvfs is None else dvfs[k])
