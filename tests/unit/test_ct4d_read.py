@@ -173,3 +173,27 @@ def test_series_mixing_percent_and_no_percent_descriptions_are_refused(tmp_path)
     _rewrite(tmp_path / "a", average)
     with pytest.raises(ImageError, match="series 'AVG' .* has no phase percentage"):
         read_4dct(tmp_path / "a")
+
+
+def test_dose4d_phase_missing_from_the_4dct_says_what_to_do(tmp_path, capsys):
+    """Issue 27: dose4d told the user to "pick one of these" phases; it has nothing to pick."""
+    from tetdose.cli import main
+    from tetdose.motion import BreathingModel
+    from tetdose.motion.conserve import update_series
+
+    from helpers import box_mesh
+
+    mesh = box_mesh([-4, -4, -4], [4, 4, 4], (2, 2, 2))
+    mesh = mesh.with_data(point_data={"density": np.ones(mesh.n_points)})
+    series, _ = update_series(BreathingModel(2.0).series(mesh, 4))  # 0, 25, 50, 75 %
+    series.write(tmp_path / "phases")
+    for pct, im in zip((0.0, 50.0), phases(2), strict=True):
+        write_image(tmp_path / f"phase_{pct:05.1f}.nrrd", im)
+    (tmp_path / "plan.toml").write_text('[[beam]]\ntype = "pencil"\nenergy_mev = 1.0\n'
+                                        'position_mm = [0, 0, -50.0]\ndirection = [0, 0, 1]\n')
+    code = main(["dose4d", "-q", "--phases", str(tmp_path / "phases"), "--plan",
+                 str(tmp_path / "plan.toml"), "--ct4d", str(tmp_path / "phase_000.0.nrrd"),
+                 str(tmp_path / "phase_050.0.nrrd"), "-o", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert code == 2 and "no 25 % phase for the phase mesh at 25 %" in err
+    assert "pick one" not in err and "tetdose deform --4dct" in err

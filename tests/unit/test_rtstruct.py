@@ -214,9 +214,30 @@ def test_coarse_grid_uses_nearest_plane_and_fine_grid_warns(tmp_path):
     expected, certain = analytic(coarse, sphere_truth)
     assert np.array_equal(mask[certain], expected[certain])
     finer = ImageGrid(fine.origin_mm, (1.5, 1.25, 0.5), np.eye(3), (28, 32, 80))
-    with pytest.warns(UserWarning, match="not interpolated"):
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # one empty slice between planes: interpolated
         half = structure_mask(structures[0], finer)
-    assert not half[1::2].any() and half[0::2].any()
+    expected, _ = analytic(finer, sphere_truth)
+    assert half[1::2].any()
+    assert np.mean(half != expected) < 0.01  # shape-based: the sphere, not every other slice
+    sparse = Structure("Sparse", 4, None, structures[0].contours[::4])  # planes 4 mm apart
+    with pytest.warns(UserWarning, match="runs of more than 2 slices .* not interpolated"):
+        gappy = structure_mask(sparse, finer)
+    assert gappy.any(axis=(1, 2)).sum() == len(sparse.contours)  # only the planes' slices
+
+
+def test_every_other_slice_contours_are_interpolated_shape_based():
+    """Issue 27: an RT Structure Set contoured on every other CT slice left every other slice
+    empty (MMG then failed); the gaps are filled between the neighbouring planes' shapes."""
+    grid = make_grid(np.eye(3), spacing=(1.0, 1.0, 1.0), size=(40, 40, 30))
+    zs = slice_z_mm(grid)
+    every = sphere_and_ring(grid)[0]
+    other = sphere_and_ring(grid, z_planes=zs[::2])[0]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        full, sparse = structure_mask(every, grid), structure_mask(other, grid)
+    assert sparse[1::2].sum() > 0.9 * full[1::2].sum()
+    assert np.mean(sparse != full) < 0.01 and sparse.sum() == pytest.approx(full.sum(), rel=0.05)
 
 
 def test_errors_oblique_off_grid_empty_and_not_rtstruct(tmp_path):

@@ -15,9 +15,10 @@ from tetdose.cli._dose import (
     run_settings,
 )
 from tetdose.core.io import read_ct
+from tetdose.core.phase_names import order_by_names
 from tetdose.dose.dose4d import run_dose4d, write_dose4d
 from tetdose.errors import OptionError
-from tetdose.motion.ct4d_read import find_phase, read_4dct
+from tetdose.motion.ct4d_read import SERIES_FIX, find_phase, read_4dct
 from tetdose.motion.dvf import read_dvf
 from tetdose.motion.phases import PhaseSeries
 from tetdose.plan.prescription import PER_PHOTON_UNIT
@@ -59,11 +60,14 @@ def run(args: argparse.Namespace) -> int:
     if args.dvf and args.ct4d:
         raise OptionError("give either --ct4d (the real phase CTs are the bodies) or --dvf "
                           "(the warped reference CT is), not both")
-    dvfs = [read_dvf(f) for f in args.dvf] if args.dvf else None
+    dvfs = ([read_dvf(f) for f in order_by_names(args.dvf, series.phase_percent, "--dvf")]
+            if args.dvf else None)
     phase_ct = None
     if args.ct4d:
         ct4d = read_4dct(args.ct4d[0] if len(args.ct4d) == 1 else args.ct4d)
-        phase_ct = [ct4d[find_phase(ct4d, float(pct))].image for pct in series.phase_percent]
+        phase_ct = [ct4d[find_phase(ct4d, float(pct), fix=SERIES_FIX,
+                                    what=f" for the phase mesh at {pct:g} % of {args.phases}")
+                         ].image for pct in series.phase_percent]
     engine = None
     if args.engine == "ompmc":
         from tetdose.coupling.ompmc import phase_engine

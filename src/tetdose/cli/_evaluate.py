@@ -68,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _run_phases(args: argparse.Namespace) -> int:
     from tetdose.motion import PhaseSeries
-    from tetdose.motion.ct4d_read import find_phase, read_4dct
+    from tetdose.motion.ct4d_read import SERIES_FIX, find_phase, read_4dct
 
     series = PhaseSeries.read(None, args.phases)
     if series.density_g_cm3 is None:
@@ -79,7 +79,8 @@ def _run_phases(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     rows = []
     for k, pct in enumerate(series.phase_percent):
-        real = ct_phases[find_phase(ct_phases, float(pct))]
+        real = ct_phases[find_phase(ct_phases, float(pct), fix=SERIES_FIX,
+                                    what=f" for the phase mesh at {pct:g} %")]
         roi = None if not args.mask else _roi_from_mask(read_labels(args.mask), real.image,
                                                         args.label)
         ev = evaluate(real.image, series.mesh(k), series.density_g_cm3[k],

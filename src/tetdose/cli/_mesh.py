@@ -70,6 +70,8 @@ def parse_sizes(text: str | None) -> float | dict[int, float] | None:
 
 
 def _inputs(args: argparse.Namespace):  # noqa: ANN202 - (Image, list[int] | None, names)
+    import numpy as np
+
     from tetdose.core.io import read_image
     from tetdose.meshing.inputs import labels_from_structures, with_body
 
@@ -96,6 +98,11 @@ def _inputs(args: argparse.Namespace):  # noqa: ANN202 - (Image, list[int] | Non
             except ValueError as exc:
                 raise TetdoseError(f"--body takes 'auto' or a label number, got {args.body!r}"
                                    ) from exc
+            present = sorted(int(v) for v in np.unique(labels.array) if v != 0)
+            if body not in present:
+                raise TetdoseError(f"--body {body}: the label image has no label {body} (its "
+                                   f"labels: {present}); name the body's label, or --body auto "
+                                   "with --ct")
         if ids is not None and body not in ids:
             ids = [*ids, body]
     return labels, ids, names

@@ -8,7 +8,9 @@
   refused, listing both.
 * ``body="auto"`` adds the CT's patient outline (:func:`tetdose.meshing.labels.body_mask`),
   resampled by nearest neighbour onto the label grid when it differs from the CT grid, as label
-  ``max + 1`` under every other label; ``body=N`` only makes sure label N is meshed.
+  ``max + 1`` under every other label (refused when the outline misses the label image's grid
+  or holds none of its labels); ``body=N`` only makes sure label N is meshed (refused when the
+  image has no label N).
 """
 
 from __future__ import annotations
@@ -79,6 +81,13 @@ def with_body(labels: Image, ct: Image, body_label: int | None = None) -> tuple[
     no other label is; returns the image and the body label."""
     arr = as_label_array(labels.array).astype(np.int32)
     body = _on_grid(body_mask(ct.array), ct, labels)
+    if not body.any():
+        raise ImageError("the CT's body outline does not overlap the label image's grid (no "
+                         "voxel of it lies there): give the CT the labels were drawn on (same "
+                         "patient frame), or --body N naming the body's label")
+    if not (body & (arr != 0)).any():
+        raise ImageError("the CT's body outline holds none of the labels: the CT and the label "
+                         "image do not overlap; give the CT the labels were drawn on")
     lab = int(arr.max()) + 1 if body_label is None else int(body_label)
     out = arr.copy()
     out[body & (arr == 0)] = lab

@@ -89,13 +89,22 @@ def read_4dct(path: str | os.PathLike[str] | Sequence[str | os.PathLike[str]]) -
     return _from_files(files, sort_names=False)
 
 
-def find_phase(phases: Sequence[Phase4D], percent: float) -> int:
-    """Index of the phase at ``percent`` [%] (within :data:`PERCENT_TOL`); error naming the others."""
+#: What to do when the phases of a mesh series (``dose4d --ct4d``, ``evaluate --4dct``) have no
+#: 4D-CT phase at their percentage.
+SERIES_FIX = ("the phase meshes must sit at the 4D-CT's phases: deform the mesh with this "
+              "4D-CT (`tetdose deform --4dct`) or give `deform --phase-percent` those percentages")
+
+
+def find_phase(phases: Sequence[Phase4D], percent: float, *,
+               fix: str = "pick one of these", what: str = "") -> int:
+    """Index of the phase at ``percent`` [%] (within :data:`PERCENT_TOL`); error naming the others
+    and ``fix`` (default: pick one, for a percentage the user chose; :data:`SERIES_FIX` for
+    phases that come from a mesh series, ``what`` naming them)."""
     got = np.array([p.percent for p in phases])
     k = int(np.argmin(np.abs(got - percent)))
     if abs(got[k] - percent) > PERCENT_TOL:
-        raise ImageError(f"the 4D-CT has no {percent:g} % phase (phases: "
-                         f"{', '.join(f'{g:g}' for g in got)} %); pick one of these")
+        raise ImageError(f"the 4D-CT has no {percent:g} % phase{what} (phases: "
+                         f"{', '.join(f'{g:g}' for g in got)} %); {fix}")
     return k
 
 
