@@ -132,6 +132,8 @@ class _Run:
         write_mesh(self.out / "phantom" / "organ_mesh.vtu", self.mesh)
         m = self.mesh
         self.summary["phantom"] = {"meshed": list(MOVING), "tets": m.n_tets,
+                                   "labels": {self.ph.label_names[int(r)]: int(r)
+                                              for r in np.unique(m.region)},
                                    "points": m.n_points, "ct_size": list(self.ph.ct.grid.size),
                                    "spacing_mm": self.ph.ct.grid.spacing_mm.tolist()}
         return (f"{self.c.phantom}: {', '.join(MOVING)} meshed ({m.n_tets} tets), the rest CT "
@@ -157,7 +159,11 @@ class _Run:
             for name in ("all", *STRUCTURES):
                 roi = cover >= 0.5
                 if name != "all":
-                    roi &= self.ph.labels.array == self.label_of.get(name, -1)
+                    region = self.ph.labels.array == self.label_of.get(name, -1)
+                    if (roi & region).sum() < 0.5 * region.sum():  # the mesh does not cover it
+                        row.setdefault("not_meshed", []).append(name)
+                        continue
+                    roi &= region
                 if roi.sum() < 10:
                     continue
                 ev = evaluate(ct, dm.mesh, dm.density_g_cm3, roi=roi, overlap=exact)

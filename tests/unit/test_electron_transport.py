@@ -416,3 +416,31 @@ def test_volume_points_in_a_hybrid_world_follow_the_mass_outside_the_mesh():
     for _c, x, y, z in in_voxels:
         cell, *_ = start_cell(arrays.geometry, x, y, z, 0.0, 0.0, 1.0)
         assert cell >= m_tets
+
+
+def test_source_mix_is_the_group_cdf_the_kernel_draws_from():
+    """Issue 27: how a volume source shares histories with beams is recorded (``source_mix``)
+    and is the kernel's group cdf: weight / Σ weight, a beam's weight in its units (MU)."""
+    from tetdose.core.image import Image
+    from tetdose.plan.photon_source import PhotonSource
+    from tetdose.transport.geometry.world import World, world_arrays
+    from tetdose.transport.run.job import assign_materials
+    from tetdose.transport.sources.species import GROUPS, particle_sources, source_mix
+    from tetdose.transport.sources.volume import volume_arrays
+
+    grid = helpers.grid_for((0, 0, 0), (20, 20, 20), (5.0, 5.0, 5.0))
+    world = World(density=Image(np.ones(grid.shape), grid))
+    beam = PhotonSource("pencil", (10.0, 10.0, -5.0), (0.0, 0.0, 1.0), energies_mev=(1.0,),
+                        weight=3.0)
+    plan = Plan((beam,), volume_sources=(VolumeSource("electron", (1.0,), weight=1.0),))
+    assert source_mix(Plan((beam,))) is None  # photon beams alone: nothing to say
+    mix = source_mix(plan)
+    assert mix["fraction_of_histories"] == {"photon": 0.75, "electron": 0.0, "positron": 0.0,
+                                            "volume": 0.25}
+    arrays = world_arrays(world, lambda r, reg: assign_materials(r, reg, plan))
+    vol = volume_arrays(plan.volume_sources, world, arrays, lambda p: grid.to_grid_frame(p))
+    _, groups = particle_sources(plan, TransportSettings(100, physics="dose"),
+                                 lambda a, d: a @ grid.direction if d else grid.to_grid_frame(a),
+                                 vol)
+    fractions = np.diff(np.r_[0.0, groups.group_cdf])
+    np.testing.assert_allclose(fractions, [mix["fraction_of_histories"][g] for g in GROUPS])

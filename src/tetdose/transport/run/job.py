@@ -42,6 +42,7 @@ from tetdose.transport.sources.species import (
     ParticleSources,
     particle_sources,
     refuse_in_kerma_mode,
+    source_mix,
 )
 from tetdose.transport.sources.volume import volume_arrays
 
@@ -259,6 +260,11 @@ def execute(job: TransportJob, on_grid: MeshOnGrid | None, plan: Plan,
                     per_batch=per_batch[:sum(len(r[0]) for r in rows)])
 
 
+def _mix(plan: Plan) -> dict[str, object]:
+    mix = source_mix(plan)
+    return {} if mix is None else {"source_mix": mix}
+
+
 def physics_record(settings: TransportSettings) -> dict[str, object]:
     """What the dose is (absorbed dose or collision kerma) and its cut-offs [MeV], for records."""
     rec: dict[str, object] = {"physics": settings.physics,
@@ -288,7 +294,7 @@ def assemble(job: TransportJob, on_grid: MeshOnGrid | None, plan: Plan,
     result = DoseResult(energy, per_batch, job.mass_g, ledger, counts, plan.particles,
                         settings.seed, settings.estimator, job.kind, wall_s, __version__,
                         job.grid, {"materials": job.names, "n_cells": len(job.mass_g),
-                                   **physics_record(settings), **(extra or {})},
+                                   **physics_record(settings), **_mix(plan), **(extra or {})},
                         n_tets=job.n_tets, on_grid=on_grid)
     if not np.any(energy):
         warnings.warn("the dose is zero everywhere: no photon interacted in the world (is it "

@@ -82,3 +82,25 @@ def particle_sources(plan: Plan, settings: TransportSettings,
     cdf = np.cumsum(w) / w.sum()
     cdf[-1] = 1.0
     return photon, ParticleSources(electron, positron, volume, cdf)
+
+
+def source_mix(plan: Plan) -> dict[str, object] | None:
+    """How a plan with volume sources (or e± beams) shares its source particles between groups,
+    for the run record; None for photon beams alone.
+
+    One draw per history: group g with probability W_g / Σ W (W_g the sum of its sources'
+    ``weight``), then a source within it. A linac beam's weight is its meterset (MU), so a volume
+    source of weight w next to beams of M MU gets w / (M + w) of the histories; the dose is per
+    source particle of the whole mix, and a prescription or normalisation scales all groups by
+    one factor.
+    """
+    by = {p: [b for b in plan.sources if _particle(b) == p] for p in GROUPS[:3]}
+    weights = [sum(b.weight for b in by[p]) for p in GROUPS[:3]]
+    weights.append(sum(v.weight for v in plan.volume_sources))
+    if not any(weights[1:]):
+        return None
+    total = sum(weights)
+    return {"fraction_of_histories": {g: w / total for g, w in zip(GROUPS, weights, strict=True)},
+            "weights": dict(zip(GROUPS, weights, strict=True)),
+            "rule": "each history draws a source with probability weight / sum of weights (a "
+                    "linac beam's weight is its MU); dose per source particle of the whole mix"}
