@@ -115,6 +115,8 @@ class Dose4D:
             "weights": self.accumulated.weights.tolist(),
             "units": {"dose": self.results[0].record()["units"]["dose"]},
         }
+        if "source_mix" in self.results[0].extra:  # beams and volume sources in one plan
+            out["source_mix"] = self.results[0].extra["source_mix"]
         if self.body is not None:
             out["body_accumulated_max_dose_gy"] = float(self.body.accumulated.array.max())
             out["combined_accumulated_max_dose_gy"] = float(self.body.combined.array.max())
