@@ -172,3 +172,30 @@ def test_doses_pair_with_phases_by_the_numbers_in_their_names(phase_mesh, tmp_pa
     for message, given in bad.items():
         with pytest.raises(OptionError, match=message):
             import_doses(series, given)
+
+
+def test_phase_percents_must_be_distinct_and_in_the_cycle(phase_mesh):
+    """Two phases at one percent wrote one phase_PPP.P output over the other."""
+    from tetdose.errors import MeshError
+
+    pts = np.repeat(phase_mesh.points_mm[None], 2, axis=0)
+    with pytest.raises(MeshError, match="two phases at one percent"):
+        PhaseSeries(phase_mesh, pts, phase_percent=[0.0, 0.0])
+    with pytest.raises(MeshError, match=r"must lie in \[0, 100\)"):
+        PhaseSeries(phase_mesh, pts, phase_percent=[0.0, 100.0])
+
+
+def test_import_dose_density_in_hu_is_refused(phase_mesh, tmp_path, capsys):
+    from tetdose.cli import main
+    from tetdose.core.io import write_image
+
+    pts = phase_mesh.points_mm[None]
+    series = PhaseSeries(phase_mesh, pts, density_g_cm3=phase_mesh.point_data["density"][None])
+    series.write(tmp_path / "phases")
+    grid = grid_for([-12, -10, -8], [12, 10, 8], [2.0, 2.0, 2.0])
+    write_3ddose(tmp_path / "p.3ddose", Image(np.ones(grid.shape), grid))
+    write_image(tmp_path / "ct.nrrd", Image(np.full(grid.shape, 40.0), grid))  # HU, not g/cm³
+    code = main(["import-dose", "--phases", str(tmp_path / "phases"), "--dose",
+                 str(tmp_path / "p.3ddose"), "--density", str(tmp_path / "ct.nrrd"), "-o",
+                 str(tmp_path / "out")])
+    assert code == 2 and "denser than any material: a CT in HU?" in capsys.readouterr().err

@@ -107,3 +107,22 @@ def test_gamma_never_reports_a_nan_pass_rate():
     with pytest.raises(DoseError, match="NaN"):
         gamma_index(dose, dose.with_array(dose.array * np.nan))
     assert issubclass(DoseError, ValueError) and issubclass(OptionError, ValueError)
+
+
+def test_a_density_image_given_as_ct_is_refused():
+    """A density image [g/cm³] (0.001…1.9) read as HU became ≈ 1 g/cm³ everywhere, silently."""
+    rho = np.linspace(0.0012, 1.92, GRID.n_voxels).reshape(GRID.shape).astype(np.float32)
+    with pytest.raises(ImageError, match=r"fractional values 0.0012…1.92: a density image"):
+        check_ct_hu(Image(rho, GRID), "rho.nrrd")
+    water = Image(np.zeros(GRID.shape, np.float32), GRID)  # 0 HU everywhere: a water CT
+    assert check_ct_hu(water) is water
+    whole = Image(np.round(rho * 2), GRID)  # whole numbers: HU near water, not densities
+    assert check_ct_hu(whole) is whole
+
+
+def test_a_background_density_in_hu_is_refused(tmp_path, capsys):
+    from tetdose.cli import main
+
+    code = main(["4dct", "--phases", str(tmp_path), "--like", str(tmp_path / "ct.nrrd"),
+                 "--background", "1000", "-o", str(tmp_path / "out")])
+    assert code == 2 and "denser than any material" in capsys.readouterr().err

@@ -136,6 +136,10 @@ def float_in(low: float, high: float = math.inf, *, low_open: bool = False,
     return parse
 
 
+#: Densest material [g/cm³] (osmium 22.59) rounded up: a larger "density" is a CT number.
+MAX_DENSITY_G_CM3 = 23.0
+
+
 def density_or_word(words: Sequence[str]) -> Callable[[str], str | float]:
     """argparse type: one of ``words`` or a finite density ≥ 0 [g/cm³]."""
 
@@ -150,6 +154,10 @@ def density_or_word(words: Sequence[str]) -> Callable[[str], str | float]:
         if not math.isfinite(value) or value < 0:
             raise argparse.ArgumentTypeError(f"a density must be a finite number ≥ 0 g/cm³, "
                                              f"got {text!r}")
+        if value > MAX_DENSITY_G_CM3:
+            raise argparse.ArgumentTypeError(
+                f"{text} g/cm³ is denser than any material (osmium 22.6 g/cm³): a CT number in "
+                "HU? give the density in g/cm³ (water 1.0)")
         return value
 
     parse.__name__ = "background"

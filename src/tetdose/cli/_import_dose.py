@@ -61,6 +61,21 @@ def _dose_files(given: list[Path]) -> list[Path]:
     return found
 
 
+def _density_image(path: Path) -> Image:
+    """A --density image, refused when its values are not densities [g/cm³] (negative, or
+    beyond any material: a CT in HU given where densities are asked)."""
+    from tetdose._checks import check_density
+    from tetdose.cli._common import MAX_DENSITY_G_CM3
+
+    image = read_image(path)
+    rho = check_density(image.array, what=f"voxels of --density {path}",
+                        fix="give the density [g/cm³] the code ran on, or its CT with --ct")
+    if rho.max() > MAX_DENSITY_G_CM3:
+        raise OptionError(f"--density {path} holds values up to {rho.max():g}, denser than any "
+                          "material: a CT in HU? give it with --ct (and --calibration)")
+    return image
+
+
 def run(args: argparse.Namespace) -> int:
     check_output(args, folder=True)
     series = PhaseSeries.read(None, args.phases)
@@ -70,7 +85,7 @@ def run(args: argparse.Namespace) -> int:
                           "phase, in phase order")
     kinds = [dose_kind(f) for f in files]
     pct = series.phase_percent
-    densities = ([read_image(f) for f in order_by_names(args.density, pct, "--density")]
+    densities = ([_density_image(f) for f in order_by_names(args.density, pct, "--density")]
                  if args.density else None)
     if args.ct:
         cal = calibration_from(args)

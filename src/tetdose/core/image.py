@@ -25,6 +25,8 @@ ORTHONORMAL_TOL = 1e-6
 #: CT numbers outside this range [HU] mean the image is not a CT in HU (wrapped or unscaled
 #: values, densities…): air is −1000 HU, padding at most −3024 HU, dense metal about +30000 HU.
 CT_HU_RANGE = (-5000.0, 40000.0)
+#: A floating-point "CT" whose fractional values all lie in [0, this] is a density image [g/cm³].
+DENSITY_LIKE_MAX = 3.5
 
 
 @dataclass(frozen=True, eq=False)
@@ -217,5 +219,12 @@ def check_ct_hu(image: Image, source: str = "the CT") -> Image:
             f"{source} holds values {lo:g}…{hi:g}, outside the HU range of a CT "
             f"({CT_HU_RANGE[0]:g}…{CT_HU_RANGE[1]:g}): give a CT in Hounsfield units (wrapped or "
             "unscaled pixel values, or densities, are not)"
+        )
+    if (np.issubdtype(dtype, np.floating) and 0.0 <= lo and hi <= DENSITY_LIKE_MAX
+            and hi > lo and np.any(arr != np.round(arr))):
+        raise ImageError(
+            f"{source} holds fractional values {lo:.4g}…{hi:.4g}: a density image [g/cm³], not "
+            "HU (a CT in HU spans tens to thousands of HU, air −1000); give the CT in Hounsfield "
+            "units (`tetdose voxelize --hu` writes one from a mapped mesh)"
         )
     return image

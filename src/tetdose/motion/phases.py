@@ -74,6 +74,11 @@ class PhaseSeries:
              else np.asarray(self.time_weight, dtype=np.float64).reshape(-1))
         if len(pct) != k or len(w) != k:
             raise MeshError(f"{k} phases but {len(pct)} phase percents and {len(w)} weights")
+        if not (np.isfinite(pct).all() and np.all((pct >= 0) & (pct < 100))):
+            raise MeshError(f"phase percents must lie in [0, 100) %, got {pct.tolist()}")
+        if len(np.unique(pct)) != k:
+            raise MeshError(f"two phases at one percent ({pct.tolist()} %): every phase needs its "
+                            "own position in the cycle; give distinct --phase-percent values")
         if np.any(w < 0) or not np.isfinite(w).all() or w.sum() <= 0:
             raise MeshError(f"time weights must be finite, ≥ 0 and not all 0, got {w.tolist()}")
         object.__setattr__(self, "points_mm", pts)
