@@ -36,9 +36,11 @@ def add_args(parser: argparse.ArgumentParser) -> None:
         parser.add_argument("--bits", type=int, choices=(16, 32), default=16)
         return
     parser.add_argument("--mesh-dose", required=True, type=Path,
-                        help="dose VTU (cell_data dose) or a folder holding accumulated.vtu")
+                        help="dose VTU (cell_data dose; dose_std: its σ) or a folder holding "
+                             "accumulated.vtu")
     parser.add_argument("--voxel-dose", required=True, type=Path,
-                        help="dose image (.nrrd …) or a folder holding accumulated.nrrd")
+                        help="dose image (.nrrd …; its σ: *_std beside it, dose_std.nrrd for "
+                             "dose.nrrd) or a folder holding accumulated.nrrd")
     parser.add_argument("--structures", type=Path,
                         help="label image (0 = background) or a DICOM RTSTRUCT file")
     parser.add_argument("--ct", type=Path,
@@ -76,36 +78,64 @@ def _find(path: Path, stem: str, suffixes: tuple[str, ...], what: str) -> Path:
 def _run_compare(args: argparse.Namespace) -> int:
     from tetdose.compare.comparison import (
         compare_doses,
+        mesh_dose_std,
+        read_dose_std_image,
         read_mesh_dose,
         read_structure_masks,
         recorded_dose_unit,
     )
     from tetdose.core.io import read_ct, read_image
+    from tetdose.meshing.labels import body_mask
 
     check_output(args, folder=True)
     mesh_path = _find(args.mesh_dose, "accumulated", MESH_SUFFIXES, "mesh")
     mesh, dose = read_mesh_dose(mesh_path)
-    voxel = read_image(_find(args.voxel_dose, "accumulated", (".nrrd", ".mha", ".nii.gz"),
-                             "dose image"))
+    voxel_path = _find(args.voxel_dose, "accumulated", (".nrrd", ".mha", ".nii.gz"),
+                       "dose image")
+    voxel = read_image(voxel_path)
     masks = read_structure_masks(args.structures, voxel.grid) if args.structures else None
-    density = None
+    density = body = None
     if args.ct is not None:
         ct = read_ct(args.ct)
         density = ct.with_array(calibration_from(args).density(ct.array).astype(float))
+        body = body_mask(ct.array)
     result = compare_doses(mesh, dose, voxel, structures=masks, reference=args.reference,
                            threshold_percent=args.threshold,
                            gamma_max_points=args.gamma_max_points,
-                           unit=recorded_dose_unit(mesh_path), density=density)
+                           unit=recorded_dose_unit(mesh_path), density=density,
+                           mesh_std=mesh_dose_std(mesh),
+                           voxel_std=read_dose_std_image(voxel_path, voxel.grid), body=body)
     result.write(args.output)
-    reg = result.summary["region"]
-    print(f"compared where both doses exist: {reg['voxels']} voxels ({reg['volume_cm3']:.1f} "
-          "cm³) at least half inside the mesh")
-    for name, g in result.summary["gamma"].items():
-        print(f"gamma {name}: {g['pass_rate_percent']:.2f} % pass")
-    for name, row in result.summary["dvh"].items():
+    s = result.summary
+    reg = s["region"]
+    print(f"compared: {reg['voxels']} voxels ({reg['volume_cm3']:.1f} cm³), "
+          f"{reg['description']}")
+    print(f"σ: mesh {s['uncertainty']['mesh']}; voxel {s['uncertainty']['voxel']}")
+    for name, row in s["structures"].items():
+        print(_significance_line(name, row))
+    for name, g in s["gamma"].items():
+        print(f"gamma {name}: {g['pass_rate_percent']:.2f} % pass (two unbiased runs of these "
+              f"σ: {g['expected_pass_rate_percent']:.1f} %)")
+    for name, row in s["dvh"].items():
         print(_dvh_line(name, row))
     print(f"report → {args.output / 'report.html'}")
     return 0
+
+
+def _significance_line(name: str, row: dict) -> str:
+    """Mean relative difference ± 1σ and the systematic part of one structure."""
+    line = (f"{name}: mean difference {100 * row['mean_rel_diff']:+.2f} ± "
+            f"{100 * row['mean_rel_diff_sigma']:.2f} %")
+    if row.get("systematic_rel_diff") is None:
+        return f"{line}; {row['systematic_model']}"
+    model = row["systematic_model"]
+    if model == "none":
+        return (f"{line}; statistically consistent (systematic "
+                f"{100 * row['systematic_rel_diff']:+.2f} ± "
+                f"{100 * row['systematic_rel_diff_sigma']:.2f} %, carried by no point)")
+    return (f"{line}; systematic {100 * row['systematic_rel_diff']:+.2f} ± "
+            f"{100 * row['systematic_rel_diff_sigma']:.2f} % in "
+            f"{100 * row['systematic_fraction']:.0f} % of the points")
 
 
 def _dvh_line(name: str, row: dict) -> str:
@@ -117,6 +147,9 @@ def _dvh_line(name: str, row: dict) -> str:
         return f"{what} {d['volume_cm3']:.4g} cm³{mass}: mean {d['Dmean']:.4g}{by_mass}"
 
     note = f"; note: {row['note']}" if "note" in row else ""
+    flagged = [k for k, p in row.get("points", {}).items() if p["significant"]]
+    if flagged:
+        note += f"; beyond 2σ: {', '.join(flagged)}"
     return f"DVH {name}: {side('tets', row['mesh'])}; {side('voxels', row['voxel'])}{note}"
 
 
