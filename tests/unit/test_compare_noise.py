@@ -60,7 +60,8 @@ def test_cli_reads_both_sigmas_and_tells_the_systematic_half(case, tmp_path, cap
     write_image(tmp_path / "labels.nrrd", Image(labels, voxel.grid))
     assert main(["compare", "-q", "--mesh-dose", str(tmp_path / "dose.vtu"), "--voxel-dose",
                  str(tmp_path / "dose.nrrd"), "--ct", str(tmp_path / "ct.nrrd"),
-                 "--structures", str(tmp_path / "labels.nrrd"), "--gamma-max-points", "500",
+                 "--structures", str(tmp_path / "labels.nrrd"), "--gamma", "3/3",
+                 "--gamma-max-points", "500",
                  "-o", str(tmp_path / "cmp")]) == 0
     out = capsys.readouterr().out
     s = json.loads((tmp_path / "cmp" / "summary.json").read_text())
@@ -90,6 +91,7 @@ def test_cli_reads_both_sigmas_and_tells_the_systematic_half(case, tmp_path, cap
     assert any(n.startswith("significance_k") for n in figures)
     assert any(n.startswith("sigma_k") for n in figures)
     assert "label 1: mean difference +4" in out and "statistically consistent" in out
+    assert len(s["gamma"]) == 1  # --gamma 3/3 alone
 
 
 def test_without_sigma_the_doses_are_compared_as_exact_and_the_report_says_so(case):

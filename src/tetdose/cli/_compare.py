@@ -44,17 +44,33 @@ def add_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--structures", type=Path,
                         help="label image (0 = background) or a DICOM RTSTRUCT file")
     parser.add_argument("--ct", type=Path,
-                        help="the CT of the voxel dose (on its grid): the voxel regions' masses "
-                             "for the DVH table (default: estimated from the mesh's densities)")
+                        help="the CT of the voxel dose (on its grid): the body outline and the "
+                             "tissue compared (density ≥ 0.2 g/cm³; never air), the voxel "
+                             "regions' masses for the DVH table (default: estimated from the "
+                             "mesh's densities)")
     add_calibration_arg(parser)
     parser.add_argument("--reference", choices=("voxel", "mesh"), default="voxel",
                         help="which dose is the gamma reference (default voxel)")
     parser.add_argument("--threshold", type=float_in(0.0, 100.0, high_open=True), default=10.0,
                         help="gamma low-dose threshold [%% of the reference maximum]")
+    parser.add_argument("--gamma", action="append", type=_criterion, metavar="DD/DTA[/local]",
+                        help="a gamma criterion, dose %% / distance mm, e.g. 3/3 or 3/3/local "
+                             "(repeatable; default 3/3, 2/2 and 3/3/local)")
     parser.add_argument("--gamma-max-points", type=int_at_least(1), default=200_000,
                         help="evaluate gamma on a seeded random sample of at most this many "
                              "points above the threshold (pass rate ± its standard error)")
     parser.add_argument("-o", "--output", required=True, type=Path, help="report folder")
+
+
+def _criterion(text: str) -> tuple[float, float, bool]:
+    parts = text.split("/")
+    try:
+        if len(parts) not in (2, 3) or (len(parts) == 3 and parts[2] != "local"):
+            raise ValueError
+        return float(parts[0]), float(parts[1]), len(parts) == 3
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is no gamma criterion; write e.g. 3/3 or "
+                                         "3/3/local") from None
 
 
 def run(args: argparse.Namespace) -> int:
@@ -102,6 +118,7 @@ def _run_compare(args: argparse.Namespace) -> int:
     result = compare_doses(mesh, dose, voxel, structures=masks, reference=args.reference,
                            threshold_percent=args.threshold,
                            gamma_max_points=args.gamma_max_points,
+                           **({"criteria": tuple(args.gamma)} if args.gamma else {}),
                            unit=recorded_dose_unit(mesh_path), density=density,
                            mesh_std=mesh_dose_std(mesh),
                            voxel_std=read_dose_std_image(voxel_path, voxel.grid), body=body)
