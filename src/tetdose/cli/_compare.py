@@ -36,23 +36,41 @@ def add_args(parser: argparse.ArgumentParser) -> None:
         parser.add_argument("--bits", type=int, choices=(16, 32), default=16)
         return
     parser.add_argument("--mesh-dose", required=True, type=Path,
-                        help="dose VTU (cell_data dose) or a folder holding accumulated.vtu")
+                        help="dose VTU (cell_data dose; dose_std: its σ) or a folder holding "
+                             "accumulated.vtu")
     parser.add_argument("--voxel-dose", required=True, type=Path,
-                        help="dose image (.nrrd …) or a folder holding accumulated.nrrd")
+                        help="dose image (.nrrd …; its σ: *_std beside it, dose_std.nrrd for "
+                             "dose.nrrd) or a folder holding accumulated.nrrd")
     parser.add_argument("--structures", type=Path,
                         help="label image (0 = background) or a DICOM RTSTRUCT file")
     parser.add_argument("--ct", type=Path,
-                        help="the CT of the voxel dose (on its grid): the voxel regions' masses "
-                             "for the DVH table (default: estimated from the mesh's densities)")
+                        help="the CT of the voxel dose (on its grid): the body outline and the "
+                             "tissue compared (density ≥ 0.2 g/cm³; never air), the voxel "
+                             "regions' masses for the DVH table (default: estimated from the "
+                             "mesh's densities)")
     add_calibration_arg(parser)
     parser.add_argument("--reference", choices=("voxel", "mesh"), default="voxel",
                         help="which dose is the gamma reference (default voxel)")
     parser.add_argument("--threshold", type=float_in(0.0, 100.0, high_open=True), default=10.0,
                         help="gamma low-dose threshold [%% of the reference maximum]")
+    parser.add_argument("--gamma", action="append", type=_criterion, metavar="DD/DTA[/local]",
+                        help="a gamma criterion, dose %% / distance mm, e.g. 3/3 or 3/3/local "
+                             "(repeatable; default 3/3, 2/2 and 3/3/local)")
     parser.add_argument("--gamma-max-points", type=int_at_least(1), default=200_000,
                         help="evaluate gamma on a seeded random sample of at most this many "
                              "points above the threshold (pass rate ± its standard error)")
     parser.add_argument("-o", "--output", required=True, type=Path, help="report folder")
+
+
+def _criterion(text: str) -> tuple[float, float, bool]:
+    parts = text.split("/")
+    try:
+        if len(parts) not in (2, 3) or (len(parts) == 3 and parts[2] != "local"):
+            raise ValueError
+        return float(parts[0]), float(parts[1]), len(parts) == 3
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is no gamma criterion; write e.g. 3/3 or "
+                                         "3/3/local") from None
 
 
 def run(args: argparse.Namespace) -> int:
@@ -76,37 +94,66 @@ def _find(path: Path, stem: str, suffixes: tuple[str, ...], what: str) -> Path:
 def _run_compare(args: argparse.Namespace) -> int:
     from tetdose.compare.comparison import (
         compare_doses,
+        mesh_dose_std,
+        read_dose_std_image,
         read_mesh_dose,
         read_structure_masks,
         recorded_dose_unit,
     )
     from tetdose.core.io import read_ct, read_image
+    from tetdose.meshing.labels import body_mask
 
     check_output(args, folder=True)
     mesh_path = _find(args.mesh_dose, "accumulated", MESH_SUFFIXES, "mesh")
     mesh, dose = read_mesh_dose(mesh_path)
-    voxel = read_image(_find(args.voxel_dose, "accumulated", (".nrrd", ".mha", ".nii.gz"),
-                             "dose image"))
+    voxel_path = _find(args.voxel_dose, "accumulated", (".nrrd", ".mha", ".nii.gz"),
+                       "dose image")
+    voxel = read_image(voxel_path)
     masks = read_structure_masks(args.structures, voxel.grid) if args.structures else None
-    density = None
+    density = body = None
     if args.ct is not None:
         ct = read_ct(args.ct)
         density = ct.with_array(calibration_from(args).density_checked(
             ct.array, f"the CT {args.ct}")[0].astype(float))
+        body = body_mask(ct.array)
     result = compare_doses(mesh, dose, voxel, structures=masks, reference=args.reference,
                            threshold_percent=args.threshold,
                            gamma_max_points=args.gamma_max_points,
-                           unit=recorded_dose_unit(mesh_path), density=density)
+                           **({"criteria": tuple(args.gamma)} if args.gamma else {}),
+                           unit=recorded_dose_unit(mesh_path), density=density,
+                           mesh_std=mesh_dose_std(mesh),
+                           voxel_std=read_dose_std_image(voxel_path, voxel.grid), body=body)
     result.write(args.output)
-    reg = result.summary["region"]
-    print(f"compared where both doses exist: {reg['voxels']} voxels ({reg['volume_cm3']:.1f} "
-          "cm³) at least half inside the mesh")
-    for name, g in result.summary["gamma"].items():
-        print(f"gamma {name}: {g['pass_rate_percent']:.2f} % pass")
-    for name, row in result.summary["dvh"].items():
+    s = result.summary
+    reg = s["region"]
+    print(f"compared: {reg['voxels']} voxels ({reg['volume_cm3']:.1f} cm³), "
+          f"{reg['description']}")
+    print(f"σ: mesh {s['uncertainty']['mesh']}; voxel {s['uncertainty']['voxel']}")
+    for name, row in s["structures"].items():
+        print(_significance_line(name, row))
+    for name, g in s["gamma"].items():
+        print(f"gamma {name}: {g['pass_rate_percent']:.2f} % pass (two unbiased runs of these "
+              f"σ: {g['expected_pass_rate_percent']:.1f} %)")
+    for name, row in s["dvh"].items():
         print(_dvh_line(name, row))
     print(f"report → {args.output / 'report.html'}")
     return 0
+
+
+def _significance_line(name: str, row: dict) -> str:
+    """Mean relative difference ± 1σ and the systematic part of one structure."""
+    line = (f"{name}: mean difference {100 * row['mean_rel_diff']:+.2f} ± "
+            f"{100 * row['mean_rel_diff_sigma']:.2f} %")
+    if row.get("systematic_rel_diff") is None:
+        return f"{line}; {row['systematic_model']}"
+    model = row["systematic_model"]
+    if model == "none":
+        return (f"{line}; statistically consistent (systematic "
+                f"{100 * row['systematic_rel_diff']:+.2f} ± "
+                f"{100 * row['systematic_rel_diff_sigma']:.2f} %, carried by no point)")
+    return (f"{line}; systematic {100 * row['systematic_rel_diff']:+.2f} ± "
+            f"{100 * row['systematic_rel_diff_sigma']:.2f} % in "
+            f"{100 * row['systematic_fraction']:.0f} % of the points")
 
 
 def _dvh_line(name: str, row: dict) -> str:
@@ -118,6 +165,9 @@ def _dvh_line(name: str, row: dict) -> str:
         return f"{what} {d['volume_cm3']:.4g} cm³{mass}: mean {d['Dmean']:.4g}{by_mass}"
 
     note = f"; note: {row['note']}" if "note" in row else ""
+    flagged = [k for k, p in row.get("points", {}).items() if p["significant"]]
+    if flagged:
+        note += f"; beyond 2σ: {', '.join(flagged)}"
     return f"DVH {name}: {side('tets', row['mesh'])}; {side('voxels', row['voxel'])}{note}"
 
 

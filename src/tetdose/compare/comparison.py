@@ -36,9 +36,18 @@ import numpy as np
 from tetdose._constants import MM3_PER_CM3
 from tetdose._typing import BoolArray, FloatArray, IntArray
 from tetdose.compare import report
-from tetdose.compare.dvh import dvh, image_dvh
+from tetdose.compare.consistency import (
+    compared_region,
+    expected_gamma_pass,
+    mesh_std_to_grid,
+    significance_table,
+)
+from tetdose.compare.dvh_bands import banded_dvh, compare_points
 from tetdose.compare.gamma import gamma_index
+from tetdose.compare.noise_figures import sigma_maps_figure, significance_figure
 from tetdose.compare.profiles import image_profile, mesh_profile
+from tetdose.compare.significance import normalised_difference
+from tetdose.core.body import NEAR_MAX_CM3, TISSUE_FLOOR_G_CM3, near_max_gy
 from tetdose.core.image import Image, ImageGrid
 from tetdose.core.mass import tet_mass_g
 from tetdose.core.mesh import TetMesh
@@ -51,6 +60,14 @@ from tetdose.plan.prescription import PER_PHOTON_UNIT
 CRITERIA = ((3.0, 3.0, False), (2.0, 2.0, False), (3.0, 3.0, True))
 #: A voxel is compared when at least this fraction of its volume lies inside the mesh.
 REGION_FRACTION = 0.5
+#: What the near-maximum of the summary is.
+NEAR_MAX_SAID = (f"D{NEAR_MAX_CM3:g}cm³ over the compared region (in tissue: density ≥ "
+                 f"{TISSUE_FLOOR_G_CM3:g} g/cm³ when known), never one voxel in air")
+#: How the systematic part is separated from the statistical one.
+SIGNIFICANCE_SAID = ("per structure: mean relative difference (first dose to the reference, "
+                     "mass-weighted) ± 1σ; systematic part: maximum-likelihood mixture of "
+                     "statistical noise and a fraction f of points shifted by δ (after Kawrakow "
+                     "& Fippel, PMB 45:2163, 2000; tetdose.compare.significance)")
 #: Mean doses (or regions) differing by more than this [%] get an explaining note.
 REGION_NOTE_PERCENT = 1.0
 
@@ -108,6 +125,36 @@ def read_mesh_dose(path: str | Path) -> tuple[TetMesh, FloatArray]:
     return mesh, np.asarray(mesh.cell_data["dose"], dtype=np.float64).reshape(-1)
 
 
+def mesh_dose_std(mesh: TetMesh) -> FloatArray | None:
+    """The per-tet σ [Gy] of a dose VTU (cell_data ``dose_std``), None when absent or all zero
+    (an imported dose without σ is written with zeros)."""
+    s = mesh.cell_data.get("dose_std")
+    if s is None:
+        return None
+    s = np.asarray(s, dtype=np.float64).reshape(-1)
+    return s if np.any(s > 0) else None
+
+
+def std_image_path(dose_path: str | Path) -> Path:
+    """Where a dose image's σ lies: ``*_std`` beside it (dose.nrrd → dose_std.nrrd,
+    accumulated_voxel_part.nrrd → accumulated_voxel_part_std.nrrd)."""
+    path = Path(dose_path)
+    stem, _, suffix = path.name.partition(".")
+    return path.with_name(f"{stem}_std.{suffix}")
+
+
+def read_dose_std_image(dose_path: str | Path, grid: ImageGrid) -> Image | None:
+    """The σ image beside a dose image (:func:`std_image_path`), None when there is none."""
+    from tetdose.core.io import read_image
+
+    path = std_image_path(dose_path)
+    if not path.exists():
+        return None
+    std = read_image(path)
+    grid.require_same(std.grid, f"the dose {dose_path} and its σ {path}")
+    return std.with_array(np.asarray(std.array, dtype=np.float64))
+
+
 def recorded_dose_unit(dose_path: str | Path) -> str:
     """The dose unit a run record beside ``dose_path`` states (``<stem>.json`` of ``tetdose
     dose``, ``summary.json`` of ``tetdose dose4d``): "Gy per fraction" when prescribed, else
@@ -128,38 +175,57 @@ def compare_doses(mesh: TetMesh, mesh_dose: FloatArray, voxel_dose: Image, *,
                   structures: Mapping[str, BoolArray] | None = None, reference: str = "voxel",
                   threshold_percent: float = 10.0, gamma_max_points: int | None = 200_000,
                   criteria: tuple[tuple[float, float, bool], ...] = CRITERIA,
-                  unit: str = PER_PHOTON_UNIT, density: Image | None = None) -> Comparison:
+                  unit: str = PER_PHOTON_UNIT, density: Image | None = None,
+                  mesh_std: FloatArray | None = None, voxel_std: Image | None = None,
+                  body: BoolArray | None = None) -> Comparison:
     """Compare a per-tet dose with a voxel dose (module docstring); doses in ``unit``.
 
     ``structures``: name → voxel mask on the voxel dose's grid (DVHs per structure besides the
     whole mesh); ``reference``: "voxel" or "mesh", the gamma reference; ``density``: voxel
     densities [g/cm³] on the voxel dose's grid (the CT through its calibration) for the voxel
-    regions' masses (default: estimated from the mesh's densities).
+    regions' masses and the tissue floor (default: estimated from the mesh's densities);
+    ``mesh_std``/``voxel_std``: each dose's σ (None: compared as exact);
+    ``body``: the body outline on the voxel grid (:mod:`tetdose.compare.consistency`).
     """
     if reference not in ("voxel", "mesh"):
         raise OptionError(f"the gamma reference must be 'voxel' or 'mesh', got {reference!r}")
     dose = per_tet_dose(mesh, mesh_dose)
     voxel = voxel_dose.with_array(np.asarray(voxel_dose.array, dtype=np.float64))
+    for name, other in (("density (--ct)", density), ("σ image", voxel_std)):
+        if other is not None:
+            voxel.grid.require_same(other.grid, f"the voxel dose and its {name}")
     overlap = compute_overlap(mesh, voxel.grid)
     mesh_img = mesh_dose_to_grid(mesh, dose, voxel.grid, overlap=overlap)
-    region = half_inside(overlap)
+    regions = _Regions(mesh, voxel.grid, overlap, density)
+    region, region_said = compared_region(half_inside(overlap), body, regions.voxel_rho)
     if not region.any():
         raise GeometryMismatchError("no voxel of the dose grid lies at least half inside the "
-                                    "mesh; compare a mesh dose with a voxel dose of the same "
-                                    "patient")
+                                    "mesh (and in the body's tissue); compare a mesh dose with a "
+                                    "voxel dose of the same patient")
+    sig = _Sigmas(mesh, mesh_std, voxel_std, voxel.grid, overlap)
     ref, ev = (voxel, mesh_img) if reference == "voxel" else (mesh_img, voxel)
-    kmax = np.unravel_index(int(np.argmax(np.where(region, ref.array, -np.inf))),
-                            ref.array.shape)
-    norm = float(ref.array[kmax])
-    figures = [report.dose_slices_figure(mesh_img, voxel, k=int(kmax[0]), unit=unit, mesh=mesh)]
-    gammas = _gammas(ref, ev, region, int(kmax[0]), norm, criteria, threshold_percent,
-                     gamma_max_points, figures)
-    if density is not None:
-        voxel.grid.require_same(density.grid, "the voxel dose and the density (--ct)")
-    regions = _Regions(mesh, voxel.grid, overlap, density)
+    s_ref, s_ev = (sig.voxel, sig.mesh) if reference == "voxel" else (sig.mesh, sig.voxel)
+    cm3 = voxel.grid.voxel_volume_mm3 / MM3_PER_CM3
+    norm = near_max_gy(np.where(region, ref.array, 0.0), cm3)
+    k, centre_index = _hot_slice(ref.array, region, norm)
+    figures = [report.dose_slices_figure(mesh_img, voxel, k=k, unit=unit, mesh=mesh)]
+    labels = ("mesh", "voxel") if reference == "voxel" else ("voxel", "mesh")
+    above = region & (ref.array >= threshold_percent / 100.0 * norm)
+    weight = regions.voxel_weight()
+    masks = {"compared region": region, **{n: region & np.asarray(m, bool)
+                                           for n, m in (structures or {}).items()}}
+    table, _ = significance_table(ev.array, s_ev, ref.array, s_ref, weight, masks, above)
+    if sig.any:  # without σ there is no Δ/σ to map (the summary says: compared as exact)
+        z = normalised_difference(ev.array, s_ev, ref.array, s_ref)
+        figures.append(significance_figure(ref, ev.array - ref.array, z, region, above, k=k,
+                                           labels=labels, unit=unit))
+        figures.append(sigma_maps_figure(ref, sig.relative(ev, s_ev), sig.relative(ref, s_ref),
+                                         region, k=k, labels=labels))
+    gammas = _gammas(ref, ev, (s_ref, s_ev) if sig.any else None, region, k, norm, criteria,
+                     threshold_percent, gamma_max_points, figures)
     dvh_summary = _dvhs(mesh, dose, mesh_img, voxel, {"mesh": region, **(structures or {})},
-                        unit, figures, regions)
-    centre = voxel.grid.index_to_physical(np.array(kmax[::-1], dtype=float))
+                        unit, figures, regions, sig)
+    centre = voxel.grid.index_to_physical(np.array(centre_index[::-1], dtype=float))
     lo_mm, hi_mm = mesh.bounds_mm()
     for axis, name in enumerate("xyz"):
         a, b = centre.copy(), centre.copy()
@@ -167,36 +233,77 @@ def compare_doses(mesh: TetMesh, mesh_dose: FloatArray, voxel_dose: Image, *,
         figures.append(report.profiles_figure(
             [mesh_profile(mesh, dose, a, b), image_profile(voxel, a, b)], name=f"profile_{name}",
             unit=unit))
-    above = ref.array >= threshold_percent / 100.0 * norm
-    diff = (mesh_img.array - voxel.array)[above & region]
+    diff = (mesh_img.array - voxel.array)[above]
     n_region = int(region.sum())
+    near = {f"{n}_dose_near_max_gy": near_max_gy(np.where(region, img.array, 0.0), cm3)
+            for n, img in (("mesh", mesh_img), ("voxel", voxel))}
     summary = {"unit": unit,
-               "region": {"description": "voxels at least half inside the mesh",
-                          "voxels": n_region,
-                          "volume_cm3": n_region * voxel.grid.voxel_volume_mm3 / MM3_PER_CM3,
-                          "reference_max_gy": norm},
-               "mesh_dose_max_gy": float(dose.max()), "voxel_dose_max_gy": float(voxel.array.max()),
+               "region": {"description": region_said, "voxels": n_region,
+                          "volume_cm3": n_region * cm3,
+                          "reference_near_max_gy": norm, "near_max": NEAR_MAX_SAID},
+               **near,
+               "uncertainty": sig.said, "significance_method": SIGNIFICANCE_SAID,
                "mean_abs_difference_gy": float(np.abs(diff).mean()) if diff.size else float("nan"),
-               "gamma": gammas, "dvh": dvh_summary}
+               "structures": table, "gamma": gammas, "dvh": dvh_summary}
     return Comparison(figures, summary, mesh_img, region)
 
 
-def _gammas(ref: Image, ev: Image, region: BoolArray, k: int, norm: float,
+def _hot_slice(ref: FloatArray, region: BoolArray, near_max: float) -> tuple[int, tuple[int, ...]]:
+    """The axial slice and voxel index of the centroid of the region's voxels at or above
+    95 % of the near-maximum (the hottest tissue, not one noisy voxel)."""
+    hot = np.argwhere(region & (ref >= 0.95 * near_max))
+    if len(hot) == 0:
+        hot = np.argwhere(region)
+    c = tuple(int(round(x)) for x in hot.mean(axis=0))
+    return c[0], c
+
+
+class _Sigmas:
+    """Both doses' σ on the voxel grid (zeros for a dose without σ) and what the report says."""
+
+    def __init__(self, mesh: TetMesh, mesh_std: FloatArray | None, voxel_std: Image | None,
+                 grid: ImageGrid, overlap: Overlap) -> None:
+        zeros = np.zeros(grid.shape)
+        self.mesh = zeros if mesh_std is None else mesh_std_to_grid(
+            mesh, mesh_std, grid, overlap).array
+        self.voxel = zeros if voxel_std is None else np.asarray(voxel_std.array, np.float64)
+        self.tet = None if mesh_std is None else np.asarray(mesh_std, np.float64).ravel()
+        self.any = mesh_std is not None or voxel_std is not None
+        self.said = {"mesh": "σ from the mesh's dose_std (batches), put on the voxels"
+                     if mesh_std is not None else "no σ given: compared as exact",
+                     "voxel": "σ from the dose's _std image (batches)" if voxel_std is not None
+                     else "no σ given: compared as exact"}
+
+    def relative(self, dose: Image, s: FloatArray) -> FloatArray | None:
+        if not np.any(s > 0):
+            return None
+        d = np.asarray(dose.array, float)
+        return np.divide(s, d, out=np.zeros_like(d), where=d > 0)
+
+
+def _gammas(ref: Image, ev: Image, sigmas: tuple[FloatArray, FloatArray] | None,
+            region: BoolArray, k: int, norm: float,
             criteria: tuple[tuple[float, float, bool], ...], threshold_percent: float,
             max_points: int | None, figures: list[report.Figure]) -> dict[str, Any]:
-    """Gamma summaries per criterion (sampled over the region) and a figure of slice k each."""
+    """Gamma summaries per criterion (sampled over the region), with the pass rate two unbiased
+    runs of these σ would reach (:func:`~tetdose.compare.consistency.expected_gamma_pass`), and
+    a figure of slice k each."""
     gammas = {}
     for dd, dta, local in criteria:
-        g = gamma_index(ref, ev, dose_percent=dd, dta_mm=dta, local=local,
-                        threshold_percent=threshold_percent, max_points=max_points,
-                        mask=region, normalization_gy=norm)
-        gammas[g.summary()["criterion"]] = g.summary()
+        kw = {"dose_percent": dd, "dta_mm": dta, "local": local,
+              "threshold_percent": threshold_percent, "mask": region, "normalization_gy": norm}
+        g = gamma_index(ref, ev, max_points=max_points, **kw)
+        row = g.summary()
+        if sigmas is not None:
+            row |= expected_gamma_pass(ref, sigmas[0], ev, sigmas[1], **kw)
+        else:
+            row["expected_pass_rate_percent"] = 100.0  # exact doses: no noise to fail
+        gammas[row["criterion"]] = row
         slice_mask = np.zeros_like(region)
         slice_mask[k] = region[k]
-        g_slice = gamma_index(ref, ev, dose_percent=dd, dta_mm=dta, local=local,
-                              threshold_percent=threshold_percent, mask=slice_mask,
-                              normalization_gy=norm)
-        figures.append(report.gamma_figure(g_slice, k=k))
+        g_slice = gamma_index(ref, ev, **(kw | {"mask": slice_mask}))
+        figures.append(report.gamma_figure(g_slice, k=k,
+                                           expected=row["expected_pass_rate_percent"]))
     return gammas
 
 
@@ -208,6 +315,7 @@ class _Regions:
         self.tet_volume_cm3 = mesh.volumes_mm3 / MM3_PER_CM3
         self.tet_mass_g = (tet_mass_g(mesh) if "density" in mesh.point_data else None)
         self.voxel_cm3 = grid.voxel_volume_mm3 / MM3_PER_CM3
+        self.voxel_shape = grid.shape
         if density is not None:
             self.voxel_rho = np.asarray(density.array, dtype=np.float64)
             self.mass_source = "voxel masses from the CT's densities (--ct)"
@@ -221,6 +329,15 @@ class _Regions:
         else:
             self.voxel_rho = None
             self.mass_source = "no densities: masses unknown"
+
+    def voxel_weight(self) -> FloatArray:
+        """Each voxel's mass [g] where its density is known, else its volume [cm³]: the weights
+        of the mean relative difference."""
+        vol = np.full(self.voxel_shape, self.voxel_cm3)
+        if self.voxel_rho is None:
+            return vol
+        rho = self.voxel_rho
+        return np.where(np.isfinite(rho), np.nan_to_num(rho) * self.voxel_cm3, vol)
 
     def mesh_part(self, sel: BoolArray, dose: FloatArray) -> dict[str, Any]:
         out = {"volume_cm3": float(self.tet_volume_cm3[sel].sum())}
@@ -250,9 +367,11 @@ def _mean(d: FloatArray, w: FloatArray) -> float:
 
 def _dvhs(mesh: TetMesh, dose: FloatArray, mesh_img: Image, voxel: Image,
           masks: Mapping[str, BoolArray], unit: str, figures: list[report.Figure],
-          regions: _Regions) -> dict[str, Any]:
+          regions: _Regions, sig: _Sigmas) -> dict[str, Any]:
     """Mesh (by tet volume) and voxel DVHs of the whole mesh (its tets; the compared voxels) and
-    of each structure, with each region's volume, mass and means (module docstring)."""
+    of each structure, with each region's volume, mass and means (module docstring), each DVH
+    point with its σ and the differences flagged that exceed their combined uncertainty
+    (:mod:`tetdose.compare.dvh_bands`)."""
     structures = {}
     tet_voxel = voxel.grid.voxel_of(mesh.centroids_mm)
     for name, mask in masks.items():
@@ -264,18 +383,21 @@ def _dvhs(mesh: TetMesh, dose: FloatArray, mesh_img: Image, voxel: Image,
             name = name if name != "mesh" else "structure mesh"
         structures[name] = (sel, mask)
     curves, table = {}, {}
+    v_cm3 = voxel.grid.voxel_volume_mm3 / MM3_PER_CM3
     for name, (sel, mask) in structures.items():
         if not sel.any() or not mask.any():
             continue
-        hm = dvh(dose[sel], mesh.volumes_mm3[sel] / MM3_PER_CM3, name="mesh")  # by volume
-        hv = image_dvh(voxel, mask, name="voxel")
+        hm = banded_dvh(dose[sel], None if sig.tet is None else sig.tet[sel],
+                        mesh.volumes_mm3[sel] / MM3_PER_CM3, name="mesh")  # by volume
+        hv = banded_dvh(np.asarray(voxel.array)[mask], sig.voxel[mask],
+                        np.full(int(mask.sum()), v_cm3), name="voxel")
         curves[name] = [hm, hv]
         mesh_side = hm.metrics() | regions.mesh_part(sel, dose)
         voxel_side = hv.metrics() | regions.voxel_part(mask, np.asarray(voxel.array))
         same = {"mesh_Dmean": float(np.asarray(mesh_img.array)[mask].mean()),
-                "voxel_Dmean": hv.mean_gy}
+                "voxel_Dmean": hv.dvh.mean_gy}
         table[name] = {"mesh": mesh_side, "voxel": voxel_side, "same_voxels": same,
-                       "mass_source": regions.mass_source}
+                       "points": compare_points(hm, hv), "mass_source": regions.mass_source}
         note = _region_note(mesh_side, voxel_side, same)
         if note:
             table[name]["note"] = note

@@ -23,6 +23,7 @@ import numpy as np
 from tetdose._atomic import atomic_write_dir
 from tetdose._typing import FloatArray
 from tetdose.compare.dvh import DVH
+from tetdose.compare.dvh_bands import BandedDVH
 from tetdose.compare.gamma import GammaResult
 from tetdose.compare.profiles import Profile
 from tetdose.compare.slices import ISODOSE_FRACTIONS, SliceFrame, draw_dose_wash
@@ -126,25 +127,28 @@ def dose_slices_figure(a: Image, b: Image, *, labels: tuple[str, str] = ("mesh",
                   render_png(fig), {**data, "unit": unit})
 
 
-def gamma_figure(result: GammaResult, *, k: int) -> Figure:
-    """Gamma map of axial slice k (NaN = not evaluated; values above 2 clipped for display)."""
+def gamma_figure(result: GammaResult, *, k: int, expected: float | None = None) -> Figure:
+    """Gamma map of axial slice k (NaN = not evaluated; values above 2 clipped for display);
+    ``expected``: the pass rate [%] noise alone would give (in the title)."""
     g = result.gamma[k]
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(6, 4.5))
     im = ax.imshow(np.clip(g, 0, 2), origin="lower", cmap="RdYlGn_r", vmin=0, vmax=2)
     crit = result.summary()["criterion"]
-    ax.set_title(f"γ {crit}: {result.pass_rate_percent:.2f} % pass")
+    noise = f" (two unbiased runs: {expected:.1f} %)" if expected is not None else ""
+    ax.set_title(f"γ {crit}: {result.pass_rate_percent:.2f} % pass{noise}", fontsize=9)
     fig.colorbar(im, ax=ax, shrink=0.8)
     name = "gamma_" + str(crit).replace("%", "pct").replace("/", "_").replace(" ", "_")
     return Figure(f"{name}_k{k}", f"Gamma {crit}, slice {k}", render_png(fig),
                   {"k": k, "gamma": g, **result.summary()})
 
 
-def dvh_figure(curves: Mapping[str, Sequence[DVH]], *, unit: str = PER_PHOTON_UNIT,
+def dvh_figure(curves: Mapping[str, Sequence[DVH | BandedDVH]], *, unit: str = PER_PHOTON_UNIT,
                build_up_mm: float | None = None,
                build_up_fraction: Mapping[str, float] | None = None,
                below_kerma_fraction: Mapping[str, float] | None = None) -> Figure:
-    """Cumulative DVHs, one colour per structure, one line style per dose source.
+    """Cumulative DVHs, one colour per structure, one line style per dose source; a
+    :class:`~tetdose.compare.dvh_bands.BandedDVH` is drawn with its ±1σ band (shaded).
 
     ``unit``: "Gy" for prescribed doses; ``build_up_mm``: the beams' build-up depth d_max, noted
     in the caption (cells shallower than it report kerma, which exceeds the dose there), and
@@ -155,14 +159,20 @@ def dvh_figure(curves: Mapping[str, Sequence[DVH]], *, unit: str = PER_PHOTON_UN
     below_kerma_fraction = below_kerma_fraction or {}
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(10, 4.5), layout="constrained")
-    top = max(float(h.dose_gy[0]) for hs in curves.values() for h in hs)
+    top = max(float(_plain(h).dose_gy[0]) for hs in curves.values() for h in hs)
     levels = np.linspace(0.0, 1.05 * top, 200)
     data: dict[str, Any] = {"dose_gy": levels, "unit": unit,
                             "build_up_fraction": dict(build_up_fraction),
                             "below_kerma_fraction": dict(below_kerma_fraction)}
     for colour, (structure, hs) in enumerate(curves.items()):
-        for style, h in zip(("-", "--", ":"), hs, strict=False):
+        for style, item in zip(("-", "--", ":"), hs, strict=False):
+            h = _plain(item)
             v = h.curve(levels)
+            banded = isinstance(item, BandedDVH) and bool(item.replicas)
+            if banded:
+                lo, hi = item.band(levels)
+                ax.fill_between(levels, lo, hi, color=f"C{colour % 10}", alpha=0.2, lw=0)
+                data[f"{structure}/{h.name}/band_percent"] = {"p16": lo, "p84": hi}
             frac = build_up_fraction.get(structure, 0.0)
             note = f", {100 * frac:.0f} % in build-up" if frac > 0 else ""
             below = below_kerma_fraction.get(structure, 0.0)
@@ -175,13 +185,18 @@ def dvh_figure(curves: Mapping[str, Sequence[DVH]], *, unit: str = PER_PHOTON_UN
             data[f"{structure}/{h.name}"] = {"volume_percent": v, **h.metrics()}
     ax.set_xlabel(f"dose [{unit}]")
     ax.set_ylabel("volume [%]")
-    ax.set_title(f"Cumulative DVHs (legend: D95, D2, Dmean in {unit})", fontsize=9)
+    ax.set_title(f"Cumulative DVHs (legend: D95, D2, Dmean in {unit}; shaded: ±1σ band "
+                 "from the doses' σ)", fontsize=9)
     ax.legend(fontsize=6, loc="center left", bbox_to_anchor=(1.01, 0.5))
     caption = "Cumulative dose–volume histograms"
     if build_up_mm is not None:
         caption += (f"; structures within {build_up_mm:g} mm of the skin lie in the build-up "
                     "region, where kerma (what is scored) exceeds the absorbed dose")
     return Figure("dvh", caption, render_png(fig), data)
+
+
+def _plain(h: DVH | BandedDVH) -> DVH:
+    return h.dvh if isinstance(h, BandedDVH) else h
 
 
 def profiles_figure(profiles: Sequence[Profile], *, name: str = "profile",
