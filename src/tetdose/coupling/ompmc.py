@@ -238,9 +238,10 @@ def _coefficients(material: Material) -> tuple[FloatArray, float]:
 
 
 @lru_cache(maxsize=64)
-def _choose(name: str, pegs: Path, override: str | None, density_g_cm3: float) -> MediumChoice:
+def _choose(target: Material, pegs: Path, override: str | None, density_g_cm3: float
+            ) -> MediumChoice:
     media = pegs_media(pegs)
-    target = MATERIALS[name]
+    name = target.name
     mu_t, electrons_t = _coefficients(target)
 
     def deviations(medium: str) -> tuple[float, float]:
@@ -265,18 +266,21 @@ def _choose(name: str, pegs: Path, override: str | None, density_g_cm3: float) -
 
 
 def choose_media(names: list[str], options: OmpmcOptions,
-                 density_g_cm3: Mapping[str, float] | None = None) -> dict[str, MediumChoice]:
-    """The PEGS medium run for each tetdose material name, used at the typical density
+                 density_g_cm3: Mapping[str, float] | None = None,
+                 compositions: Mapping[str, Material] | None = None) -> dict[str, MediumChoice]:
+    """The PEGS medium run for each tetdose material name (a built-in name or one of
+    ``compositions``, the plan's ``[materials.NAME]``), used at the typical density
     ``density_g_cm3[name]`` (default: the material's nominal density) (module docstring)."""
     pegs = pegs_path(options.pegs)
-    unknown = [n for n in names if n not in MATERIALS]
+    known = dict(MATERIALS) | dict(compositions or {})
+    unknown = [n for n in names if n not in known]
     if unknown:
         raise PlanError(f"material {unknown[0]!r} has no composition in tetdose; use one of "
-                        f"{sorted(MATERIALS)}")
-    typical = {n: MATERIALS[n].density_g_cm3 for n in names} | dict(density_g_cm3 or {})
+                        f"{sorted(MATERIALS)} or define it as [materials.{unknown[0]}]")
+    typical = {n: known[n].density_g_cm3 for n in names} | dict(density_g_cm3 or {})
     # two significant digits: phases of one study share the choice (and its cache entry)
-    return {n: _choose(n, pegs, options.media.get(n), float(f"{max(typical[n], 1e-6):.2g}"))
-            for n in names}
+    return {n: _choose(known[n], pegs, options.media.get(n),
+                       float(f"{max(typical[n], 1e-6):.2g}")) for n in names}
 
 
 class OmpmcWorld(NamedTuple):
@@ -305,7 +309,7 @@ def ompmc_world(density: Image, plan: Plan, options: OmpmcOptions,
     flat = rho.ravel()
     typical = {n: float(np.average(flat[mat == i], weights=flat[mat == i]))
                for i, n in enumerate(names) if flat[mat == i].sum() > 0}
-    choices = choose_media(names, options, typical)
+    choices = choose_media(names, options, typical, plan.compositions)
     pegs_names = sorted({c.pegs for c in choices.values()})
     if len(pegs_names) > MAX_MEDIA:
         raise PlanError(f"ompmc holds at most {MAX_MEDIA} media, this world needs "

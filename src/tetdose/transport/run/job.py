@@ -27,6 +27,7 @@ from tetdose.transport.geometry.world import MeshOnGrid, World, world_arrays
 from tetdose.transport.history._electron import N_COUNTS_DOSE, N_LEDGER_DOSE
 from tetdose.transport.history._photon import C_MISSED, N_COUNTS, N_LEDGER
 from tetdose.transport.history.result import DoseResult
+from tetdose.transport.physics.materials import Material, resolve_material
 from tetdose.transport.physics.xs import (
     DENSITY_CLASS_MATERIALS,
     CrossSections,
@@ -66,7 +67,7 @@ class TransportJob(NamedTuple):
 
     kind: str  # "mesh" | "voxel" | "hybrid"
     geom: WorldGeometry
-    names: list[str]  # material names, by material index
+    names: list[str | Material]  # material names (built-in) or compositions, by material index
     src: SourceArrays  # in the world's frame
     mass_g: FloatArray  # (M + V,) cell masses, mesh order then voxels [g]
     order: IntArray | None  # kernel tet i is mesh tet order[i]
@@ -93,6 +94,23 @@ def assign_materials(mean_density_g_cm3: FloatArray, region: IntArray | None,
     return np.ascontiguousarray(mat.astype(np.intp)), [names[i] for i in used]
 
 
+def plan_media(names: list[str], plan: Plan) -> list[str | Material]:
+    """Each material name as the tables take it: the plan's ``[materials.NAME]`` composition,
+    else the built-in name (checked: an unknown name is a :class:`PlanError` here)."""
+    out: list[str | Material] = [plan.compositions.get(n, n) for n in names]
+    for m in out:
+        resolve_material(m)
+    return out
+
+
+def media_record(names: list[str | Material]) -> dict[str, object]:
+    """Run-record entries: the material names by index and each one's composition, nominal
+    density (of its density effect), I and source."""
+    mats = [resolve_material(m) for m in names]
+    return {"materials": [m.name for m in mats],
+            "compositions": {m.name: m.record() for m in mats}}
+
+
 def build_job(world: World, plan: Plan, settings: TransportSettings
               ) -> tuple[TransportJob, MeshOnGrid | None]:
     """Kernel arrays of ``world`` and the mesh-on-grid overlap pairs (hybrid worlds, else None)."""
@@ -115,7 +133,8 @@ def build_job(world: World, plan: Plan, settings: TransportSettings
     else:
         refuse_in_kerma_mode(plan)
         src = source_arrays(plan, settings, to_frame)
-    job = TransportJob(world.kind, arrays.geometry, arrays.material_names, src, arrays.mass_g,
+    job = TransportJob(world.kind, arrays.geometry, plan_media(arrays.material_names, plan), src,
+                       arrays.mass_g,
                        arrays.order, n_tets, grid, particles)
     return job, arrays.on_grid
 
@@ -287,7 +306,7 @@ def assemble(job: TransportJob, on_grid: MeshOnGrid | None, plan: Plan,
         per_batch = batch_histories(settings)
     result = DoseResult(energy, per_batch, job.mass_g, ledger, counts, plan.particles,
                         settings.seed, settings.estimator, job.kind, wall_s, __version__,
-                        job.grid, {"materials": job.names, "n_cells": len(job.mass_g),
+                        job.grid, {**media_record(job.names), "n_cells": len(job.mass_g),
                                    **physics_record(settings), **(extra or {})},
                         n_tets=job.n_tets, on_grid=on_grid)
     if not np.any(energy):
