@@ -93,7 +93,13 @@ from tetdose.transport import World, target_cells
 from tetdose.transport.history.result import DoseResult
 from tetdose.transport.physics.materials import MATERIALS, Material
 from tetdose.transport.physics.xs import ELECTRON_MASS_MEV, mass_coefficients
-from tetdose.transport.run.job import MIN_TARGET_BATCHES, PROGRESS_DELAY_S, assign_materials
+from tetdose.transport.run.job import (
+    MIN_TARGET_BATCHES,
+    PROGRESS_DELAY_S,
+    assign_materials,
+    plan_media,
+    water_factors,
+)
 from tetdose.transport.run.settings import TransportSettings
 from tetdose.transport.sources.particles import source_particles
 
@@ -292,6 +298,7 @@ class OmpmcWorld(NamedTuple):
     material: IntArray  # (nx, ny, nz) F order int32, 0 = vacuum
     mass_g: FloatArray  # (V,) voxel masses, flat voxel order
     choices: dict[str, MediumChoice]
+    cell_material: IntArray  # (V,) tetdose material per voxel: index into list(choices)
 
 
 def ompmc_world(density: Image, plan: Plan, options: OmpmcOptions,
@@ -322,7 +329,7 @@ def ompmc_world(density: Image, plan: Plan, options: OmpmcOptions,
     # (nz, ny, nx) C order is (nx, ny, nz) Fortran order: the same memory, no copy.
     return OmpmcWorld(bounds, pegs_names, np.ascontiguousarray(rho).T,  # type: ignore[arg-type]
                       np.ascontiguousarray(medium.reshape(grid.shape)).T,
-                      rho.ravel() * grid.voxel_volume_mm3 / MM3_PER_CM3, choices)
+                      rho.ravel() * grid.voxel_volume_mm3 / MM3_PER_CM3, choices, mat)
 
 
 def _cutoffs(options: OmpmcOptions, settings: TransportSettings, media: list[str],
@@ -555,6 +562,10 @@ def _simulate(density: Image, plan: Plan, settings: TransportSettings,
                             "region": settings.target_region, "reached": reached is not None,
                             "batches": done, "histories": int(per_batch[:done].sum()),
                             "achieved": _region_error(energy[:done] @ target, per_batch[:done])}
+    factor, conversion = water_factors(plan_media(list(world.choices), plan), settings)
+    if conversion:  # D_w = D_m · s_w,m of each voxel's tetdose material
+        energy *= factor[world.cell_material][None, :]
+    record.update(dose_to=settings.dose_to, **conversion)
     result = DoseResult(energy[:done], per_batch[:done], world.mass_g, ledger[:done],
                         counts[:done], plan.particles, settings.seed, "analog", "voxel",
                         time.perf_counter() - t0, __version__, density.grid, record)
