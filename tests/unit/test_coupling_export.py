@@ -233,3 +233,48 @@ def test_abaqus_file_meets_the_mcnp_rules_and_reads_back(mesh, tmp_path):
     np.testing.assert_array_equal(tets, mesh.tets)
     np.testing.assert_array_equal(mat, b.material_id)
     assert rho == dens
+
+
+def test_a_plan_composition_is_written_in_the_material_cards(tmp_path):
+    """[materials.NAME] of the plan: its region's tets are binned under it and the .material
+    file's m card holds its mass fractions (read back as ICRP-145 phantoms are)."""
+    from tetdose.core.composition import material_from_symbols
+    from tetdose.core.icrp145 import read_material_file
+    from tetdose.errors import PlanError
+
+    m = box_mesh([0, 0, 0], [6, 2, 2], (3, 1, 1))
+    m = type(m)(m.points_mm, m.tets, (m.centroids_mm[:, 0] // 2).astype(int)).split_by_region()
+    m = m.with_data(point_data={"density": np.full(m.n_points, 1.85)})
+    bone = material_from_symbols("my_bone", {"H": 0.047234, "C": 0.14433, "N": 0.04199,
+                                             "O": 0.446096, "Mg": 0.0022, "P": 0.10497,
+                                             "S": 0.00315, "Ca": 0.20993, "Zn": 0.0001}, 1.85, "t")
+    with pytest.raises(PlanError, match=r"define it as \[materials.my_bone\]"):
+        bin_densities(m, region_materials={2: "my_bone"})
+    b = bin_densities(m, region_materials={2: "my_bone"}, compositions={"my_bone": bone})
+    assert {mat.composition for mat in b.materials} == {"my_bone", "cortical_bone"}
+    paths = write_tetgen(tmp_path / "p", m.points_mm, m.tets, b.material_id, b.materials,
+                         {**MATERIALS, "my_bone": bone})
+    cards = read_material_file(paths[2])
+    mine = next(c for c in cards.values() if c.name.startswith("my_bone"))
+    assert dict(mine.mass_fractions)[20] == pytest.approx(0.20993, abs=1e-6)
+    assert dict(mine.mass_fractions)[30] == pytest.approx(0.0001, abs=1e-6)
+
+
+def test_icrp145_phantom_keeps_its_own_compositions(mesh, tmp_path):
+    """The m cards of a phantom's .material file become plan compositions by material id."""
+    from tetdose.core.icrp145 import phantom_compositions
+    from tetdose.plan.model import Plan
+    from tetdose.transport import PhotonSource
+    from tetdose.transport.run.job import plan_media
+
+    b = bin_densities(mesh)
+    write_tetgen(tmp_path / "ph", mesh.points_mm, mesh.tets, b.material_id, b.materials)
+    ids, comps = phantom_compositions(tmp_path / "ph.node")
+    assert sorted(ids) == sorted(m.id for m in b.materials)
+    for m in b.materials:
+        mine = comps[ids[m.id]]
+        assert mine.density_g_cm3 == m.density_g_cm3
+        np.testing.assert_allclose(mine.weights, MATERIALS[m.composition].weights, atol=1e-6)
+    plan = Plan((PhotonSource("point", [0.0, 0.0, 0.0], [0, 0, 1], energies_mev=np.ones(1),
+                              line_weights=np.ones(1)),), materials=ids, compositions=comps)
+    assert plan_media([ids[b.materials[0].id]], plan)[0] is comps[ids[b.materials[0].id]]

@@ -18,7 +18,7 @@ from tetdose.transport.physics._photon import (
     PHOTOELECTRIC,
     interact,
 )
-from tetdose.transport.physics.xs import MATERIALS, build_cross_sections
+from tetdose.transport.physics.xs import MATERIALS, Material, build_cross_sections
 
 NAMES = list(MATERIALS)
 THRESHOLD_MEV = 2.0 * ELECTRON_MASS_MEV
@@ -139,9 +139,11 @@ def test_tables_are_cached_by_names_and_grid():
     assert build_cross_sections(["water", "cortical_bone"], 0.01, 20.0, 200) is a
     assert build_cross_sections(["cortical_bone", "water"]) is not a
     assert build_cross_sections(["water", "cortical_bone"], points_per_decade=100) is not a
-    fresh = build_cross_sections([MATERIALS["water"], "cortical_bone"])  # Material: not cached
+    fresh = build_cross_sections([MATERIALS["water"], "cortical_bone"])  # by composition
     assert fresh is not a
-    assert build_cross_sections([MATERIALS["water"], "cortical_bone"]) is not fresh
+    assert build_cross_sections([MATERIALS["water"], "cortical_bone"]) is fresh
+    same = Material("my_water", MATERIALS["water"].mass_fractions, 1.0, "test")
+    assert build_cross_sections([same, "cortical_bone"]) is not fresh  # another name
     for got, want in zip(fresh, a, strict=True):
         np.testing.assert_array_equal(got, want)
 

@@ -177,10 +177,19 @@ def test_dose_units_follow_the_dose_unit(tmp_path, unit, units):
     with pytest.warns(UserWarning, match="Frame of Reference"):
         path = write_rt_dose(dose, tmp_path / "d.dcm", unit=unit)
     ds = pydicom.dcmread(path)
-    assert ds.DoseUnits == units and ds.DoseComment == f"dose in {unit}"
+    assert ds.DoseUnits == units and ds.DoseComment == f"dose to medium in {unit}"
     assert ("source photon" in ds.SeriesDescription) == (units == "RELATIVE")
     np.testing.assert_allclose(read_dose(path).array, dose.array,
                                atol=float(ds.DoseGridScaling) / 2)
+
+
+def test_dose_to_water_is_stated_in_comment_and_description(tmp_path):
+    with pytest.warns(UserWarning, match="Frame of Reference"):
+        path = write_rt_dose(make_dose(), tmp_path / "d.dcm", unit="Gy", dose_to="water")
+    ds = pydicom.dcmread(path)
+    assert ds.DoseComment == "dose to water in Gy" and ds.SeriesDescription.endswith("to water")
+    with pytest.raises(DicomError, match="dose_to 'ink'"):
+        write_rt_dose(make_dose(), tmp_path / "e.dcm", dose_to="ink")
 
 
 def test_unknown_dose_unit_is_refused(tmp_path):

@@ -34,6 +34,7 @@ def add_args(parser: argparse.ArgumentParser) -> None:
                             help="the CT (DICOM folder, or image) whose grid the RT Dose uses")
         parser.add_argument("-o", "--output", required=True, type=Path, help="rtdose.dcm")
         parser.add_argument("--bits", type=int, choices=(16, 32), default=16)
+        _add_dose_to(parser)
         return
     parser.add_argument("--mesh-dose", required=True, type=Path,
                         help="dose VTU (cell_data dose; dose_std: its σ) or a folder holding "
@@ -59,6 +60,7 @@ def add_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--gamma-max-points", type=int_at_least(1), default=200_000,
                         help="evaluate gamma on a seeded random sample of at most this many "
                              "points above the threshold (pass rate ± its standard error)")
+    _add_dose_to(parser)
     parser.add_argument("-o", "--output", required=True, type=Path, help="report folder")
 
 
@@ -71,6 +73,13 @@ def _criterion(text: str) -> tuple[float, float, bool]:
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r} is no gamma criterion; write e.g. 3/3 or "
                                          "3/3/local") from None
+
+
+def _add_dose_to(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--dose-to", choices=("medium", "water"), default=None,
+                        help="the dose the inputs must be (default: what their run records "
+                             "say; a file without a record is dose to medium); a mismatch is "
+                             "refused: run `tetdose dose --dose-to water` to get dose to water")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -102,6 +111,7 @@ def _run_compare(args: argparse.Namespace) -> int:
     )
     from tetdose.core.io import read_ct, read_image
     from tetdose.meshing.labels import body_mask
+    from tetdose.dose.dose_to import recorded_dose_to, require_same
 
     check_output(args, folder=True)
     mesh_path = _find(args.mesh_dose, "accumulated", MESH_SUFFIXES, "mesh")
@@ -109,6 +119,8 @@ def _run_compare(args: argparse.Namespace) -> int:
     voxel_path = _find(args.voxel_dose, "accumulated", (".nrrd", ".mha", ".nii.gz"),
                        "dose image")
     voxel = read_image(voxel_path)
+    dose_to = require_same(args.dose_to, recorded_dose_to(mesh_path, mesh), f"{mesh_path}")
+    require_same(dose_to, recorded_dose_to(voxel_path), f"{voxel_path}")
     masks = read_structure_masks(args.structures, voxel.grid) if args.structures else None
     density = body = None
     if args.ct is not None:
@@ -123,6 +135,7 @@ def _run_compare(args: argparse.Namespace) -> int:
                            unit=recorded_dose_unit(mesh_path), density=density,
                            mesh_std=mesh_dose_std(mesh),
                            voxel_std=read_dose_std_image(voxel_path, voxel.grid), body=body)
+    result.summary["dose_to"] = dose_to
     result.write(args.output)
     s = result.summary
     reg = s["region"]
@@ -176,15 +189,21 @@ def _run_export(args: argparse.Namespace) -> int:
     from tetdose.core.io import read_image
     from tetdose.core.transfer import dose_on_grid
     from tetdose.dicom.rt_dose import write_rt_dose
+    from tetdose.dose.dose_to import recorded_dose_to, require_same
 
     check_output(args, suffixes=(".dcm",))
     grid = read_image(args.like).grid
+    mesh = None
     if args.dose.suffix.lower() in MESH_SUFFIXES:
-        img = dose_on_grid(read_mesh_dose(args.dose), grid)
+        mesh, per_tet = read_mesh_dose(args.dose)
+        img = dose_on_grid((mesh, per_tet), grid)
     else:
         img = dose_on_grid(read_image(args.dose), grid, what=str(args.dose))
+    dose_to = require_same(args.dose_to, recorded_dose_to(args.dose, mesh), str(args.dose))
     reference = args.like if args.like.is_dir() else None
     unit = recorded_dose_unit(args.dose)
-    write_rt_dose(img, args.output, reference_ct=reference, bits=args.bits, unit=unit)
-    print(f"RT Dose {grid.size}, max {img.array.max():.4g} {unit} → {args.output}")
+    write_rt_dose(img, args.output, reference_ct=reference, bits=args.bits, unit=unit,
+                  dose_to=dose_to)
+    print(f"RT Dose {grid.size}, max {img.array.max():.4g} {unit}, dose to {dose_to} → "
+          f"{args.output}")
     return 0

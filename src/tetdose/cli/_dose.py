@@ -57,6 +57,10 @@ def add_args(parser: argparse.ArgumentParser) -> None:
                         help="photon energy cut-off, deposited locally [MeV]")
     add_calibration_arg(parser)
     parser.add_argument("--labels", type=Path, help="label image for --ct (region → [materials])")
+    parser.add_argument("--ct-materials", choices=("schneider", "density-classes"), default="schneider",
+                        help="composition of the CT voxels no [materials] region claims: "
+                        "Schneider et al. 2000's HU bins (default; 24 compositions) or the "
+                        "five density classes (air, lung, adipose, soft tissue, bone)")
     parser.add_argument("-o", "--output", type=Path, required=True,
                         help="dose.vtu (with --mesh, also with --ct) or dose.nrrd / .mha / "
                              ".nii.gz (--ct alone)")
@@ -120,6 +124,10 @@ def add_run_args(parser: argparse.ArgumentParser, per: str = "") -> None:
                         help="dose mode: photons cross the mesh by Woodcock (delta) tracking "
                         "(default) or walk it tet by tet (same dose within statistics)")
 
+    parser.add_argument("--dose-to", choices=("medium", "water"), default="medium",
+                        help="report dose to medium (D_m, default) or dose to water (D_w = D_m "
+                        "× the water-to-medium stopping-power ratio of each cell's medium, "
+                        "Siebers et al. 2000); recorded in every output")
     parser.add_argument("--target-uncertainty", type=relative_uncertainty, metavar="PCT",
                         help="stop once the mean dose in --target-region has this relative "
                              "standard error (e.g. 1%% or 0.01); --histories is then the cap "
@@ -155,7 +163,7 @@ def run_settings(args: argparse.Namespace, **kw: Any) -> Any:  # noqa: ANN401
                              electron_cutoff_mev=args.electron_cutoff_mev,
                              photon_splitting=args.photon_splitting,
                              range_rejection_mev=args.range_rejection_mev,
-                             photon_tracking=args.photon_tracking, **kw)
+                             photon_tracking=args.photon_tracking, dose_to=args.dose_to, **kw)
 
 
 def add_dask_arg(parser: argparse.ArgumentParser) -> None:
@@ -224,8 +232,12 @@ def _write_images(result: Any, output: Path) -> list[str]:  # noqa: ANN401
 
 
 def run(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+
+    from tetdose.core.icrp145 import is_icrp145, phantom_compositions
     from tetdose.core.io import read_ct, read_labels, write_image, write_mesh
     from tetdose.dose.absolute import absolute_result
+    from tetdose.dose.dose_to import mark
     from tetdose.transport import World
     from tetdose.transport.run.distributed import simulate_on
 
@@ -245,6 +257,10 @@ def run(args: argparse.Namespace) -> int:
     extra: dict[str, object] = {"plan": str(args.plan), "rtplan": str(args.rtplan),
                                 "dask": args.dask}
     mesh = read_mapped_mesh(args.mesh) if args.mesh is not None else None
+    if args.mesh is not None and is_icrp145(args.mesh):  # the phantom's own compositions
+        ids, comps = phantom_compositions(args.mesh)
+        plan = replace(plan, materials={**ids, **plan.materials},
+                       compositions={**comps, **plan.compositions})
     density = labels = None
     if args.ct is not None:
         ct = read_ct(args.ct)
@@ -254,6 +270,8 @@ def run(args: argparse.Namespace) -> int:
         labels = read_labels(args.labels) if args.labels else None
         extra.update(ct=str(args.ct), calibration=cal.name,
                      hu_beyond_calibration=beyond.as_dict())
+        plan, labels, extra["ct_materials"] = ct_materials(args.ct_materials, plan, ct, cal,
+                                                           labels)
     if args.engine == "ompmc":
         return _run_ompmc(args, plan, settings, mesh, density, labels, extra, progress)
     world = World(mesh=mesh, density=density, labels=labels)
@@ -263,7 +281,7 @@ def run(args: argparse.Namespace) -> int:
     result = absolute_result(result, plan, world)
     outputs: list[str] = []
     if mesh is not None:
-        write_mesh(args.output, result.to_mesh(mesh))
+        write_mesh(args.output, mark(result.to_mesh(mesh), settings.dose_to))
         outputs.append(str(args.output))
         extra["mesh"] = str(args.mesh)
     if density is not None:
@@ -279,6 +297,22 @@ def run(args: argparse.Namespace) -> int:
     if not args.quiet:
         print(summary_line(result, world.kind, outputs, path))
     return 0
+
+
+def ct_materials(rule: str, plan: Any, ct: Any, cal: Any, labels: Any  # noqa: ANN401
+                 ) -> tuple[Any, Any, dict[str, object]]:
+    """``--ct-materials``: (plan, labels, record) with Schneider's HU bins for the CT voxels no
+    plan region claims (:mod:`tetdose.core.ct_materials`), or unchanged (density classes)."""
+    from dataclasses import replace
+
+    from tetdose.core.ct_materials import assignment_record, schneider_labels
+
+    if rule != "schneider":
+        return plan, labels, {"rule": "density-classes"}
+    labels, names, comps = schneider_labels(ct, cal, labels, plan.materials)
+    plan = replace(plan, materials={**plan.materials, **names},
+                   compositions={**plan.compositions, **comps})
+    return plan, labels, assignment_record(labels, names)
 
 
 def summary_line(result: Any, world: str, outputs: list[str], path: Path) -> str:  # noqa: ANN401
@@ -299,6 +333,7 @@ def _run_ompmc(args: argparse.Namespace, plan: Any, settings: Any, mesh: Any, de
     from tetdose.core.io import write_mesh
     from tetdose.coupling.ompmc import simulate_ompmc, simulate_ompmc_on_mesh
     from tetdose.dose.absolute import absolute_result
+    from tetdose.dose.dose_to import mark
     from tetdose.transport import World
 
     if density is None:
@@ -324,7 +359,7 @@ def _run_ompmc(args: argparse.Namespace, plan: Any, settings: Any, mesh: Any, de
                            / ref.particles) for r in (main, voxel))
     outputs: list[str] = []
     if mesh is not None:
-        write_mesh(args.output, main.to_mesh(mesh))
+        write_mesh(args.output, mark(main.to_mesh(mesh), settings.dose_to))
         outputs.append(str(args.output))
         extra["mesh"] = str(args.mesh)
     image_out = _sibling(args.output, ext="nrrd") if mesh is not None else args.output

@@ -33,17 +33,18 @@ def add_args(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     check_output(args, folder=True)
     series = PhaseSeries.read(None, args.phases)
-    materials = None
+    materials = compositions = None
     if args.plan is not None:
         from tetdose.plan.model import Plan
 
-        materials = dict(Plan.from_toml(args.plan).materials)
+        plan = Plan.from_toml(args.plan)
+        materials, compositions = dict(plan.materials), dict(plan.compositions)
     record = export_phases(series, args.output, fmt=args.format, n_bins=args.density_bins,
-                           region_materials=materials)
+                           region_materials=materials, compositions=compositions)
     for ph in record["phases"]:  # type: ignore[union-attr]
         print(f"phase {ph['phase_percent']:5.1f} %: {ph['materials']} materials, mass "
               f"{ph['mass_g']:.6g} g, mass error {100 * ph['mass_error']:.3g} %, total mass "
               f"change {100 * ph['total_mass_change']:+.2g} %")
-    print(f"{series.n_phases} phases ({record['n_tets']} tets each, lengths in cm) → "
-          f"{args.output}")
+    print(f"{series.n_phases} phases ({record['n_tets']} tets each, lengths in cm; compositions "
+          f"{', '.join(record['compositions'])}) → {args.output}")  # type: ignore[arg-type]
     return 0

@@ -43,6 +43,9 @@ def add_args(p: argparse.ArgumentParser) -> None:
     add_calibration_arg(p)
     p.add_argument("--unit", default=DEFAULT_UNIT,
                    help=f"what the imported doses are (default {DEFAULT_UNIT!r})")
+    p.add_argument("--dose-to", choices=("medium", "water"), default="medium",
+                   help="what the imported doses are: dose to medium (default; Monte Carlo "
+                        "codes score it) or dose to water; recorded in the outputs")
     p.add_argument("-o", "--output", type=Path, required=True, help="output folder")
 
 
@@ -94,8 +97,9 @@ def run(args: argparse.Namespace) -> int:
     binned = (exported_densities(args.exported, series.reference.n_tets)
               if args.exported else None)
     result = import_doses(series, files, densities=densities, binned_densities=binned,
-                          unit=args.unit)
+                          unit=args.unit, dose_to=args.dose_to)
     write_imported(result, args.output)
     print(f"{series.n_phases} phases imported ({', '.join(sorted(set(kinds)))}): accumulated "
-          f"dose max {result.accumulated.dose_gy.max():.4g} {args.unit} → {args.output}")
+          f"dose max {result.accumulated.dose_gy.max():.4g} {args.unit} (dose to "
+          f"{args.dose_to}) → {args.output}")
     return 0

@@ -37,6 +37,7 @@ import numpy as np
 
 from tetdose._constants import MM_PER_CM
 from tetdose._typing import FloatArray, IntArray
+from tetdose.core.composition import Material
 from tetdose.core.mesh import TetMesh, compact_points
 from tetdose.errors import MeshError
 
@@ -196,3 +197,23 @@ def read_icrp145(path: str | os.PathLike[str], *, length_mm: float = MM_PER_CM
     rho_point[split.tets.ravel()] = np.repeat(rho_of[region], 4)
     return split.with_data(point_data={"density": rho_point},
                            cell_data={"density": rho_of[region]}), materials
+
+
+def phantom_compositions(path: str | os.PathLike[str]
+                         ) -> tuple[dict[int, str], dict[str, Material]]:
+    """The phantom's own media, for the transport: (material id → name, name → composition)
+    from the ``m`` cards of its ``.material`` file (names ``icrp145_<id>_<name>``, nominal
+    density the card's). A mesh read from the phantom keeps the id as its region label, so a
+    plan's ``[materials]`` and ``compositions`` updated with these give every organ its own
+    composition (a plan's own entry for a label wins)."""
+    labels: dict[int, str] = {}
+    comps: dict[str, Material] = {}
+    for mat in read_material_file(path).values():
+        name = f"icrp145_{mat.id}_{mat.name}"
+        total = sum(w for _, w in mat.mass_fractions)
+        fractions = tuple((z, w / total) for z, w in mat.mass_fractions)  # cards round to 1e-3
+        comps[name] = Material(name, fractions, mat.density_g_cm3,
+                               f"{with_ending(stem_of(path), MATERIAL).name} (ICRP Publication "
+                               f"145 phantom material {mat.id})")
+        labels[mat.id] = name
+    return labels, comps

@@ -42,6 +42,7 @@ from tetdose.errors import DensityError, OptionError, PlanError
 from tetdose.transport.physics.materials import (
     DENSITY_CLASS_MATERIALS,
     MATERIALS,
+    Material,
     material_for_density,
 )
 
@@ -96,16 +97,18 @@ class BinnedPhase:
 
 
 def composition_classes(mean_density_g_cm3: FloatArray, region: IntArray | None,
-                        region_materials: Mapping[int, str] | None = None
+                        region_materials: Mapping[int, str] | None = None,
+                        compositions: Mapping[str, Material] | None = None
                         ) -> tuple[IntArray, list[str]]:
     """(class index per tet, class names): a region's material from ``region_materials``
-    (label → name in :data:`MATERIALS`), any other tet its density class."""
+    (label → name in :data:`MATERIALS` or ``compositions``, the plan's ``[materials.NAME]``),
+    any other tet its density class."""
     names = list(DENSITY_CLASS_MATERIALS)
     cls = material_for_density(mean_density_g_cm3).astype(np.intp)
     for label, name in (region_materials or {}).items():
-        if name not in MATERIALS:
+        if name not in MATERIALS and name not in (compositions or {}):
             raise PlanError(f"region {label}: material {name!r} is unknown; use one of "
-                            f"{sorted(MATERIALS)}")
+                            f"{sorted(MATERIALS)} or define it as [materials.{name}]")
         if region is None or not np.any(region == label):
             continue
         if name not in names:
@@ -116,7 +119,8 @@ def composition_classes(mean_density_g_cm3: FloatArray, region: IntArray | None,
 
 def bin_densities(mesh: TetMesh, density_g_cm3: FloatArray | None = None, *,
                   n_bins: int | None = None, max_mass_error: float = DEFAULT_MAX_MASS_ERROR,
-                  region_materials: Mapping[int, str] | None = None) -> BinnedPhase:
+                  region_materials: Mapping[int, str] | None = None,
+                  compositions: Mapping[str, Material] | None = None) -> BinnedPhase:
     """Bin the mean tet densities of ``mesh`` into materials (module docstring).
 
     ``density_g_cm3``: vertex densities (default point_data ``density``); ``n_bins``: exactly
@@ -127,7 +131,7 @@ def bin_densities(mesh: TetMesh, density_g_cm3: FloatArray | None = None, *,
         raise DensityError("the mesh has no mass (all densities 0); map a density onto it first")
     volume_cm3 = mesh.volumes_mm3 / MM3_PER_CM3
     rho = mass / volume_cm3
-    cls, names = composition_classes(rho, mesh.region, region_materials)
+    cls, names = composition_classes(rho, mesh.region, region_materials, compositions)
     used = np.unique(cls)
     if n_bins is not None and n_bins < len(used):
         raise OptionError(f"--density-bins {n_bins} is fewer than the {len(used)} composition "

@@ -36,6 +36,7 @@ from tetdose.coupling.binning import DEFAULT_MAX_MASS_ERROR, bin_densities
 from tetdose.coupling.tetgen import write_material_file, write_tetgen
 from tetdose.errors import MeshError, OptionError, TopologyMismatchError
 from tetdose.motion.phases import PhaseSeries
+from tetdose.transport.physics.materials import MATERIALS, Material
 
 FORMATS = ("tetgen", "abaqus")
 #: The record written beside the phase files.
@@ -68,9 +69,11 @@ def conforming_geometry(mesh: TetMesh) -> tuple[FloatArray, IntArray]:
 
 def export_phases(series: PhaseSeries, out_dir: str | os.PathLike[str], *, fmt: str = "tetgen",
                   n_bins: int | None = None,
-                  region_materials: Mapping[int, str] | None = None) -> dict[str, object]:
+                  region_materials: Mapping[int, str] | None = None,
+                  compositions: Mapping[str, Material] | None = None) -> dict[str, object]:
     """Write every phase of ``series`` (module docstring) into ``out_dir`` (atomic); returns the
-    record written to ``export.json``."""
+    record written to ``export.json``, which lists the composition of every material used
+    (``compositions``: the plan's ``[materials.NAME]``, besides the built-in names)."""
     if fmt not in FORMATS:
         raise OptionError(f"unknown export format {fmt!r}; choose one of {', '.join(FORMATS)}")
     if series.density_g_cm3 is None:
@@ -79,8 +82,11 @@ def export_phases(series: PhaseSeries, out_dir: str | os.PathLike[str], *, fmt: 
     phases: list[dict[str, object]] = []
     record: dict[str, object] = {"format": fmt, "length_unit": "cm", "density_unit": "g/cm3",
                                  "n_tets": series.reference.n_tets, "phases": phases}
-    binned = [bin_densities(series.mesh(k), n_bins=n_bins, region_materials=region_materials)
-              for k in range(series.n_phases)]
+    binned = [bin_densities(series.mesh(k), n_bins=n_bins, region_materials=region_materials,
+                            compositions=compositions) for k in range(series.n_phases)]
+    library = {**MATERIALS, **(compositions or {})}
+    record["compositions"] = {c: library[c].record() for c in sorted(
+        {m.composition for b in binned for m in b.materials})}
     worst = max(b.mass_error for b in binned)
     if n_bins is not None and worst > DEFAULT_MAX_MASS_ERROR:
         warnings.warn(f"{n_bins} density bins leave a mass error of {100 * worst:.3g} % (more "
@@ -91,12 +97,13 @@ def export_phases(series: PhaseSeries, out_dir: str | os.PathLike[str], *, fmt: 
             stem = phase_stem(float(series.phase_percent[k]))
             points, tets = conforming_geometry(series.mesh(k))
             if fmt == "tetgen":
-                paths = write_tetgen(tmp / stem, points, tets, b.material_id, b.materials)
+                paths = write_tetgen(tmp / stem, points, tets, b.material_id, b.materials,
+                                     library)
             else:
                 paths = [write_abaqus(tmp / f"{stem}.inp", points, tets, b.material_id,
                                       b.materials,
                                       title=f"tetdose {stem} ({series.phase_percent[k]:g} %)"),
-                         write_material_file(tmp / f"{stem}.material", b.materials)]
+                         write_material_file(tmp / f"{stem}.material", b.materials, library)]
             phases.append(
                 {"phase_percent": float(series.phase_percent[k]),
                  "time_weight": float(series.time_weight[k]),

@@ -57,6 +57,8 @@ from tetdose.dose.accumulate import (
     direct_dose_mapping,
     energy_mass_transfer,
 )
+from tetdose.dose.dose_to import check as check_dose_to
+from tetdose.dose.dose_to import mark
 from tetdose.errors import GeometryMismatchError, OptionError
 from tetdose.motion.phases import PhaseSeries
 
@@ -87,6 +89,7 @@ class ImportedDose4D:
     phases: list[PhaseDose]
     accumulated: AccumulatedDose
     unit: str = DEFAULT_UNIT
+    dose_to: str = "medium"  # what the imported doses are, as the user states (dose.dose_to)
 
     def summary(self) -> dict[str, object]:
         mass = [tet_mass_g(self.series.mesh(k)) for k in range(self.series.n_phases)]
@@ -102,6 +105,7 @@ class ImportedDose4D:
             "mass_spread_rel": self.accumulated.mass_spread_rel,
             "weights": self.accumulated.weights.tolist(),
             "units": {"dose": self.unit},
+            "dose_to": self.dose_to,
         }
 
 
@@ -166,12 +170,14 @@ def phase_dose(path: str | os.PathLike[str], mesh: TetMesh, *,
 def import_doses(series: PhaseSeries, paths: Sequence[str | os.PathLike[str]], *,
                  densities: Sequence[Image] | None = None,
                  binned_densities: Sequence[FloatArray] | None = None,
-                 unit: str = DEFAULT_UNIT) -> ImportedDose4D:
-    """One dose file per phase of ``series`` → per-tet doses, accumulated.
+                 unit: str = DEFAULT_UNIT, dose_to: str = "medium") -> ImportedDose4D:
+    """One dose file per phase of ``series`` → per-tet doses, accumulated; ``dose_to``: what
+    the other code's doses are ("medium" or "water"), recorded.
 
     The files are paired with the phases by the phase numbers in their names where the names
     carry them (:func:`tetdose.core.phase_names.order_by_names`), else taken in phase order.
     """
+    check_dose_to(dose_to)
     n = series.n_phases
     for what, items in (("dose files", paths), ("density images", densities),
                         ("exported phases", binned_densities)):
@@ -189,7 +195,7 @@ def import_doses(series: PhaseSeries, paths: Sequence[str | os.PathLike[str]], *
     stds = [p.dose_std_gy for p in phases]
     acc = accumulate_meshes(meshes, [p.dose_gy for p in phases], weights=series.time_weight,
                             dose_std_gy=None if any(s is None for s in stds) else stds)
-    return ImportedDose4D(series, phases, acc, unit)
+    return ImportedDose4D(series, phases, acc, unit, dose_to)
 
 
 def write_imported(result: ImportedDose4D, out_dir: str | os.PathLike[str]) -> Path:
@@ -200,14 +206,14 @@ def write_imported(result: ImportedDose4D, out_dir: str | os.PathLike[str]) -> P
         for k, p in enumerate(result.phases):
             mesh = series.mesh(k)
             write_mesh(tmp / f"{phase_stem(float(series.phase_percent[k]))}.vtu",
-                       mesh.with_data(cell_data={
+                       mark(mesh.with_data(cell_data={
                            "dose": p.dose_gy, "mass_g": tet_mass_g(mesh),
                            "dose_std": np.zeros(mesh.n_tets) if p.dose_std_gy is None
-                           else p.dose_std_gy}))
-        write_mesh(tmp / "accumulated.vtu", series.reference.with_data(cell_data={
+                           else p.dose_std_gy}), result.dose_to))
+        write_mesh(tmp / "accumulated.vtu", mark(series.reference.with_data(cell_data={
             "dose": acc.dose_gy, "mass_g": acc.mass_g,
             "dose_std": np.zeros_like(acc.dose_gy) if acc.dose_std_gy is None
-            else acc.dose_std_gy}))
+            else acc.dose_std_gy}), result.dose_to))
         if all(p.voxel is not None for p in result.phases):
             _write_voxel_way(result, tmp / "voxel")
         (tmp / "summary.json").write_text(json.dumps(result.summary(), indent=2) + "\n")

@@ -93,7 +93,13 @@ from tetdose.transport import World, target_cells
 from tetdose.transport.history.result import DoseResult
 from tetdose.transport.physics.materials import MATERIALS, Material
 from tetdose.transport.physics.xs import ELECTRON_MASS_MEV, mass_coefficients
-from tetdose.transport.run.job import MIN_TARGET_BATCHES, PROGRESS_DELAY_S, assign_materials
+from tetdose.transport.run.job import (
+    MIN_TARGET_BATCHES,
+    PROGRESS_DELAY_S,
+    assign_materials,
+    plan_media,
+    water_factors,
+)
 from tetdose.transport.run.settings import TransportSettings
 from tetdose.transport.sources.particles import source_particles
 
@@ -238,9 +244,10 @@ def _coefficients(material: Material) -> tuple[FloatArray, float]:
 
 
 @lru_cache(maxsize=64)
-def _choose(name: str, pegs: Path, override: str | None, density_g_cm3: float) -> MediumChoice:
+def _choose(target: Material, pegs: Path, override: str | None, density_g_cm3: float
+            ) -> MediumChoice:
     media = pegs_media(pegs)
-    target = MATERIALS[name]
+    name = target.name
     mu_t, electrons_t = _coefficients(target)
 
     def deviations(medium: str) -> tuple[float, float]:
@@ -265,18 +272,21 @@ def _choose(name: str, pegs: Path, override: str | None, density_g_cm3: float) -
 
 
 def choose_media(names: list[str], options: OmpmcOptions,
-                 density_g_cm3: Mapping[str, float] | None = None) -> dict[str, MediumChoice]:
-    """The PEGS medium run for each tetdose material name, used at the typical density
+                 density_g_cm3: Mapping[str, float] | None = None,
+                 compositions: Mapping[str, Material] | None = None) -> dict[str, MediumChoice]:
+    """The PEGS medium run for each tetdose material name (a built-in name or one of
+    ``compositions``, the plan's ``[materials.NAME]``), used at the typical density
     ``density_g_cm3[name]`` (default: the material's nominal density) (module docstring)."""
     pegs = pegs_path(options.pegs)
-    unknown = [n for n in names if n not in MATERIALS]
+    known = dict(MATERIALS) | dict(compositions or {})
+    unknown = [n for n in names if n not in known]
     if unknown:
         raise PlanError(f"material {unknown[0]!r} has no composition in tetdose; use one of "
-                        f"{sorted(MATERIALS)}")
-    typical = {n: MATERIALS[n].density_g_cm3 for n in names} | dict(density_g_cm3 or {})
+                        f"{sorted(MATERIALS)} or define it as [materials.{unknown[0]}]")
+    typical = {n: known[n].density_g_cm3 for n in names} | dict(density_g_cm3 or {})
     # two significant digits: phases of one study share the choice (and its cache entry)
-    return {n: _choose(n, pegs, options.media.get(n), float(f"{max(typical[n], 1e-6):.2g}"))
-            for n in names}
+    return {n: _choose(known[n], pegs, options.media.get(n),
+                       float(f"{max(typical[n], 1e-6):.2g}")) for n in names}
 
 
 class OmpmcWorld(NamedTuple):
@@ -288,6 +298,7 @@ class OmpmcWorld(NamedTuple):
     material: IntArray  # (nx, ny, nz) F order int32, 0 = vacuum
     mass_g: FloatArray  # (V,) voxel masses, flat voxel order
     choices: dict[str, MediumChoice]
+    cell_material: IntArray  # (V,) tetdose material per voxel: index into list(choices)
 
 
 def ompmc_world(density: Image, plan: Plan, options: OmpmcOptions,
@@ -305,7 +316,7 @@ def ompmc_world(density: Image, plan: Plan, options: OmpmcOptions,
     flat = rho.ravel()
     typical = {n: float(np.average(flat[mat == i], weights=flat[mat == i]))
                for i, n in enumerate(names) if flat[mat == i].sum() > 0}
-    choices = choose_media(names, options, typical)
+    choices = choose_media(names, options, typical, plan.compositions)
     pegs_names = sorted({c.pegs for c in choices.values()})
     if len(pegs_names) > MAX_MEDIA:
         raise PlanError(f"ompmc holds at most {MAX_MEDIA} media, this world needs "
@@ -318,7 +329,7 @@ def ompmc_world(density: Image, plan: Plan, options: OmpmcOptions,
     # (nz, ny, nx) C order is (nx, ny, nz) Fortran order: the same memory, no copy.
     return OmpmcWorld(bounds, pegs_names, np.ascontiguousarray(rho).T,  # type: ignore[arg-type]
                       np.ascontiguousarray(medium.reshape(grid.shape)).T,
-                      rho.ravel() * grid.voxel_volume_mm3 / MM3_PER_CM3, choices)
+                      rho.ravel() * grid.voxel_volume_mm3 / MM3_PER_CM3, choices, mat)
 
 
 def _cutoffs(options: OmpmcOptions, settings: TransportSettings, media: list[str],
@@ -551,6 +562,10 @@ def _simulate(density: Image, plan: Plan, settings: TransportSettings,
                             "region": settings.target_region, "reached": reached is not None,
                             "batches": done, "histories": int(per_batch[:done].sum()),
                             "achieved": _region_error(energy[:done] @ target, per_batch[:done])}
+    factor, conversion = water_factors(plan_media(list(world.choices), plan), settings)
+    if conversion:  # D_w = D_m · s_w,m of each voxel's tetdose material
+        energy *= factor[world.cell_material][None, :]
+    record.update(dose_to=settings.dose_to, **conversion)
     result = DoseResult(energy[:done], per_batch[:done], world.mass_g, ledger[:done],
                         counts[:done], plan.particles, settings.seed, "analog", "voxel",
                         time.perf_counter() - t0, __version__, density.grid, record)

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import io
 import os
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -40,7 +40,7 @@ from tetdose.core.icrp145 import (
     with_ending,
 )
 from tetdose.coupling.binning import BinMaterial
-from tetdose.transport.physics.materials import MATERIALS
+from tetdose.transport.physics.materials import MATERIALS, Material
 
 __all__ = ["read_icrp145", "read_material_file", "read_tetgen", "write_material_file",
            "write_tetgen", "PhantomMaterial"]
@@ -49,9 +49,11 @@ __all__ = ["read_icrp145", "read_material_file", "read_tetgen", "write_material_
 COORD_DIGITS = 12
 
 
-def material_cards(materials: Sequence[BinMaterial]) -> str:
+def material_cards(materials: Sequence[BinMaterial],
+                   library: Mapping[str, Material] | None = None) -> str:
     """The ``.material`` text: ``C NAME DENSITY g/cm3`` and an MCNP ``m`` card per material,
-    consecutive materials separated by a line ``C`` alone.
+    consecutive materials separated by a line ``C`` alone; compositions by name from
+    ``library`` (default :data:`MATERIALS`).
 
     The separator is what Geant4's token reader needs: it ends a material's element list at
     the first token ``C`` (consuming it) and then reads ``C NAME DENSITY g/cm3 mID`` — so each
@@ -60,23 +62,25 @@ def material_cards(materials: Sequence[BinMaterial]) -> str:
     out = io.StringIO()
     for k, m in enumerate(materials):
         out.write(f"{'C' + chr(10) if k else ''}C {m.name} {m.density_g_cm3!r} g/cm3\n")
-        mat = MATERIALS[m.composition]
+        mat = (library or MATERIALS)[m.composition]
         for i, (z, w) in enumerate(zip(mat.elements, mat.weights, strict=True)):
             lead = f"m{m.id}" if i == 0 else ""
             out.write(f"{lead:<5}{int(z) * 1000} {-w:.6f}\n")
     return out.getvalue()
 
 
-def write_material_file(path: str | os.PathLike[str], materials: Sequence[BinMaterial]) -> Path:
-    """Write ``STEM.material`` (atomic)."""
+def write_material_file(path: str | os.PathLike[str], materials: Sequence[BinMaterial],
+                        library: Mapping[str, Material] | None = None) -> Path:
+    """Write ``STEM.material`` (atomic; ``library`` as for :func:`material_cards`)."""
     path = Path(path)
     with atomic_write_file(path) as tmp:
-        tmp.write_text(material_cards(materials))
+        tmp.write_text(material_cards(materials, library))
     return path
 
 
 def write_tetgen(stem: str | os.PathLike[str], points_mm: FloatArray, tets: IntArray,
-                 material_id: IntArray, materials: Sequence[BinMaterial]) -> list[Path]:
+                 material_id: IntArray, materials: Sequence[BinMaterial],
+                 library: Mapping[str, Material] | None = None) -> list[Path]:
     """Write ``STEM.node`` (cm), ``STEM.ele`` (0-based, material id attribute) and
     ``STEM.material``; each file atomic. Returns the three paths."""
     stem = Path(stem)
@@ -90,4 +94,4 @@ def write_tetgen(stem: str | os.PathLike[str], points_mm: FloatArray, tets: IntA
             (paths[1], f"{len(ele)} 4 1", ele, "%d")):
         with atomic_write_file(path) as tmp:
             np.savetxt(tmp, table, fmt=fmt, header=header, comments="")
-    return [*paths, write_material_file(with_ending(stem, MATERIAL), materials)]
+    return [*paths, write_material_file(with_ending(stem, MATERIAL), materials, library)]

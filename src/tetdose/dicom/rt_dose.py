@@ -86,8 +86,12 @@ def write_rt_dose(
     uid_prefix: str | None = DEFAULT_PREFIX,
     plan: Plan | None = None,
     unit: str = "Gy",
+    dose_to: str = "medium",
 ) -> Path:
     """Write ``dose_gy`` [Gy] as an RT Dose file at ``path`` (atomically); return ``path``.
+
+    ``dose_to``: "medium" or "water" (dose to medium or to water, :mod:`tetdose.dose.dose_to`),
+    stated in DoseComment and the series description (DICOM has no attribute for it).
 
     ``unit``: what the values are, a key of :data:`DOSE_UNITS`. "Gy per source photon" (an
     unprescribed dose) is written with DoseUnits RELATIVE, and DoseComment and the series
@@ -107,8 +111,11 @@ def write_rt_dose(
         raise DicomError(f"bits must be 16 or 32, got {bits}")
     if unit not in DOSE_UNITS:
         raise DicomError(f"dose unit {unit!r} is unknown; use one of {sorted(DOSE_UNITS)}")
+    if dose_to not in ("medium", "water"):
+        raise DicomError(f"dose_to {dose_to!r} is unknown; use 'medium' or 'water'")
     if DOSE_UNITS[unit] == "RELATIVE":
         series_description = f"{series_description} ({unit})"
+    series_description = f"{series_description}, dose to {dose_to}"
     if reference_ct is None and frame_of_reference_uid is None:
         warnings.warn(
             "no reference_ct or frame_of_reference_uid: the RT Dose gets a new Frame of "
@@ -142,7 +149,7 @@ def write_rt_dose(
         dose_tmp = stack.enter_context(atomic_write_file(path))
         ds = _dose_dataset(dose_gy, ctx, series_uid, series_number, series_description, bits)
         ds.DoseUnits = DOSE_UNITS[unit]
-        ds.DoseComment = f"dose in {unit}"
+        ds.DoseComment = f"dose to {dose_to} in {unit}"
         ds.DoseSummationType = summation_type
         ref = Dataset()
         ref.ReferencedSOPClassUID = RTPlanStorage

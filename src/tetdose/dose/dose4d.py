@@ -47,6 +47,7 @@ from tetdose.dose.accumulate import (
     direct_dose_mapping,
     energy_mass_transfer,
 )
+from tetdose.dose.dose_to import mark
 from tetdose.errors import ImageError, MeshError
 from tetdose.motion.ct4d import phase_densities
 from tetdose.motion.dvf import DisplacementField
@@ -95,8 +96,13 @@ class Dose4D:
     voxel: VoxelDose4D | None
     body: BodyDose4D | None = None
 
+    @property
+    def dose_to(self) -> str:
+        """"medium" or "water" (:mod:`tetdose.dose.dose_to`), as the phases' runs report."""
+        return str(self.results[0].extra.get("dose_to", "medium"))
+
     def summary(self) -> dict[str, object]:
-        """Ledger, lost photons and timing per phase, and the accumulated dose range.
+        """Ledger, lost photons and timing per phase, the accumulated dose range, what the dose is.
 
         ``wall_s``: the phase's run (with dask: the whole distributed call); ``transport_s``:
         the time spent on this phase's batches (with dask: summed over its worker tasks).
@@ -114,9 +120,12 @@ class Dose4D:
             "accumulated_max_dose_gy": float(self.accumulated.dose_gy.max()),
             "weights": self.accumulated.weights.tolist(),
             "units": {"dose": self.results[0].record()["units"]["dose"]},
+            "dose_to": self.dose_to,
         }
         if "source_mix" in self.results[0].extra:  # beams and volume sources in one plan
             out["source_mix"] = self.results[0].extra["source_mix"]
+        if "dose_to_water" in self.results[0].extra:
+            out["dose_to_water"] = self.results[0].extra["dose_to_water"]
         if self.body is not None:
             out["body_accumulated_max_dose_gy"] = float(self.body.accumulated.array.max())
             out["combined_accumulated_max_dose_gy"] = float(self.body.combined.array.max())
@@ -249,12 +258,13 @@ def write_dose4d(result: Dose4D, out_dir: str | os.PathLike[str]) -> Path:
     with atomic_write_dir(out) as tmp:
         for k, r in enumerate(result.results):
             stem = f"phase_{result.series.phase_percent[k]:05.1f}"
-            write_mesh(tmp / f"{stem}.vtu", r.to_mesh(result.series.mesh(k)))
+            write_mesh(tmp / f"{stem}.vtu",
+                       mark(r.to_mesh(result.series.mesh(k)), result.dose_to))
             r.save_json(tmp / f"{stem}.json")
         acc = result.accumulated
-        write_mesh(tmp / "accumulated.vtu", result.series.reference.with_data(cell_data={
+        write_mesh(tmp / "accumulated.vtu", mark(result.series.reference.with_data(cell_data={
             "dose": acc.dose_gy, "dose_std": acc.dose_std_gy if acc.dose_std_gy is not None
-            else np.zeros_like(acc.dose_gy), "mass_g": acc.mass_g}))
+            else np.zeros_like(acc.dose_gy), "mass_g": acc.mass_g}), result.dose_to))
         if result.body is not None:
             body = tmp / "body"
             for k, r in enumerate(result.results):

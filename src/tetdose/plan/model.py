@@ -16,7 +16,13 @@ calibration. Frozen dataclasses validated on construction (errors are :class:`Pl
     half_angle_deg = 180.0      # point: 180 = isotropic
     weight = 1.0                # relative weight between beams
     [materials]
-    1 = "water"                 # region label → material name
+    1 = "water"                 # region label → material name (built-in, or defined below)
+    2 = "my_bone"
+    [materials.my_bone]         # a composition by name (tetdose.core.composition)
+    composition = { H = 0.047234, C = 0.14433, N = 0.04199, O = 0.446096, Mg = 0.0022,
+                    P = 0.10497, S = 0.00315, Ca = 0.20993, Zn = 0.0001 }  # mass fractions
+    density = 1.85              # nominal density [g/cm³] (its density effect; recorded)
+    mean_excitation_ev = 106.4  # optional (default: ICRU 37's Bragg rule)
     [normalization]
     particles = 1.0             # dose reported for this many source particles
 
@@ -70,6 +76,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from tetdose.core.composition import Material, material_from_table
 from tetdose.errors import PlanError
 from tetdose.plan.beams import LinacBeam
 from tetdose.plan.photon_source import PhotonSource, check_source_keys
@@ -96,7 +103,9 @@ class Plan:
     source per control-point interval that delivers meterset: a static point source, or a
     :class:`~tetdose.plan.segments.DynamicSegment` while the machine moves). ``regions``:
     structure name → region label (``[regions]``). ``volume_sources``: :class:`VolumeSource`
-    (``type = "volume"``), particles born inside the world.
+    (``type = "volume"``), particles born inside the world. ``compositions``: material name →
+    :class:`~tetdose.core.composition.Material` of the ``[materials.NAME]`` tables (a table
+    given inside ``materials`` is moved here), usable as a built-in name.
     """
 
     beams: tuple[PhotonSource, ...] = ()
@@ -107,6 +116,7 @@ class Plan:
     prescription: Prescription | None = None
     calibration: MUCalibration | None = None
     volume_sources: tuple[VolumeSource, ...] = ()
+    compositions: Mapping[str, Material] = field(default_factory=dict)
     sources: tuple[PhotonSource | DynamicSegment, ...] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -127,7 +137,10 @@ class Plan:
         if not (math.isfinite(self.particles) and self.particles > 0):
             raise PlanError(f"normalization particles must be positive, got {self.particles}")
         mats: dict[int, str] = {}
+        comps = _compositions(self.materials, self.compositions)
         for key, name in dict(self.materials).items():
+            if isinstance(name, Mapping):
+                continue
             try:
                 mats[int(key)] = str(name)
             except (TypeError, ValueError):
@@ -143,7 +156,7 @@ class Plan:
             if lb.isocenter_region is None:
                 flat.extend(beam_sources(lb))
         for k, v in (("beams", beams), ("treatment_beams", linacs), ("materials", mats),
-                     ("regions", regions), ("sources", tuple(flat))):
+                     ("regions", regions), ("sources", tuple(flat)), ("compositions", comps)):
             object.__setattr__(self, k, v)
 
     @property
@@ -250,6 +263,22 @@ class Plan:
                    Prescription.from_dict(rx) if rx is not None else None,
                    MUCalibration.from_dict(cal) if cal is not None else None,
                    volume_sources=volumes)
+
+
+def _compositions(materials: Mapping[Any, Any], given: Mapping[str, Material]
+                  ) -> dict[str, Material]:
+    """The ``[materials.NAME]`` tables among ``materials`` as Materials, with ``given``."""
+    out = dict(given)
+    if not all(isinstance(m, Material) for m in out.values()):
+        raise PlanError("plan compositions must be Material values (tetdose.core.composition)")
+    for name, table in dict(materials).items():
+        if isinstance(table, Mapping):
+            if str(name).lstrip("-").isdigit():
+                raise PlanError(f"[materials] {name} = {{…}}: a region label takes a material "
+                                "name; define the composition as [materials.NAME] and give "
+                                f"{name} = \"NAME\"")
+            out[str(name)] = material_from_table(str(name), table, f"[materials.{name}]")
+    return out
 
 
 def _beam_from_dict(d: Mapping[str, Any], i: int, base_dir: Path) -> PhotonSource:

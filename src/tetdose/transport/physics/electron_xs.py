@@ -20,7 +20,8 @@ shell occupations and binding energies of ESTAR's data file, plasma energy
 δ = Σ fᵢ ln(1 + L²/lᵢ²) − L²(1 − β²) with L from 1/(βγ)² = Σ fᵢ/(ν̄ᵢ² + L²) (δ = 0 below the
 threshold of insulators). The nominal density of the :class:`Material` is used (air is a gas).
 
-Mean excitation energies I: water 75.0 eV and air 85.7 eV (ICRU 37/49); other materials by
+Mean excitation energies I: the material's own ``mean_excitation_ev`` when it gives one (the
+library's ICRU 37 values, a user's table); water 75.0 eV and air 85.7 eV (ICRU 37/49); other materials by
 Bragg's rule ln I = Σ wᵢ (Z/A)ᵢ ln Iᵢ / Σ wᵢ (Z/A)ᵢ with the ICRU 37 values for atoms bound in
 condensed compounds (H 19.2, C 81.0, N 82.0, O 106.0, F 112.0, Cl 180.0 eV, other elements
 1.13 × the elemental I; Seltzer & Berger 1982), or the elemental values for gases
@@ -211,6 +212,8 @@ def _medium(material: Material | str) -> _Medium:
 def mean_excitation_ev(material: Material | str) -> float:
     """Mean excitation energy I [eV] (ICRU 37 values and Bragg rule; module docstring)."""
     mat = resolve_material(material)
+    if mat.mean_excitation_ev is not None:
+        return float(mat.mean_excitation_ev)
     if mat.name in _NAMED_I_EV and mat == MATERIALS.get(mat.name):
         return _NAMED_I_EV[mat.name]
     _, elements = _estar()
@@ -527,13 +530,12 @@ def build_electron_tables(materials: Sequence[str | Material], cutoff_mev: float
     ``cutoff_mev`` [MeV] is the electron transport cut-off and the delta-ray production
     threshold Δ (kinetic energy), ``photon_cutoff_mev`` the bremsstrahlung photon production
     threshold k_c, ``e_max_mev`` the top of the grid; 1 keV ≤ Δ, k_c and e_max ≤ 100 MeV.
-    Material names are cached (the same read-only tables are returned on a repeated call).
+    Cached per composition (names and :class:`Material` values: the same read-only tables are
+    returned on a repeated call).
     Raises :class:`PlanError` on unknown materials, :class:`OptionError` on bad energies.
     """
     names = tuple(materials)
-    if all(isinstance(name, str) for name in names):
-        return _cached_tables(names, float(cutoff_mev), float(photon_cutoff_mev), float(e_max_mev))
-    return _tables(names, float(cutoff_mev), float(photon_cutoff_mev), float(e_max_mev))
+    return _cached_tables(names, float(cutoff_mev), float(photon_cutoff_mev), float(e_max_mev))
 
 
 def _tables(materials: tuple[str | Material, ...], cutoff_mev: float, photon_cutoff_mev: float,

@@ -1,9 +1,28 @@
-"""Tissue compositions (elemental mass fractions) and the density-class material rule.
+"""Named media (elemental mass fractions, nominal density, source) and the density-class rule.
 
-Compositions are those of the NIST X-ray mass attenuation tables (Hubbell & Seltzer, NIST SRD
-126, Table 2), which take the body tissues from ICRU Report 44 (1989), "Tissue Substitutes in
-Radiation Dosimetry and Measurement". With them, the mixture rule
-μ/ρ = Σᵢ wᵢ (μ/ρ)ᵢ reproduces the NIST compound tables (see :mod:`tetdose.transport.physics.xs`).
+**Library** (:data:`MATERIALS`, each entry's ``source`` names its reference):
+
+- ICRU 44: ``water``, ``air``, ``lung``, ``adipose``, ``soft_tissue``, ``soft_tissue_4``,
+  ``muscle``, ``blood``, ``cortical_bone``: the compositions of the NIST X-ray mass attenuation
+  tables (Hubbell & Seltzer, NIST SRD 126, Table 2), which take the body tissues from ICRU
+  Report 44 (1989), i.e. Woodard & White (Br. J. Radiol. 59:1209, 1986), also those of
+  ICRU Report 46 (1992). With them the mixture rule μ/ρ = Σᵢ wᵢ (μ/ρ)ᵢ reproduces the NIST
+  compound tables (:mod:`tetdose.transport.physics.xs`).
+- ICRP Reference Man tissues as in ICRU Report 37 / NIST ESTAR (with ESTAR's I): ``icrp_cortical_bone``
+  (1.85 g/cm³, EGSnrc's ICRPBONE), ``icrp_soft_tissue``, ``icrp_lung``, ``icrp_adipose``,
+  ``icrp_skeletal_muscle``.
+- ICRP Publication 110 adult male media: ``icrp110_*`` (mineral bone, teeth, spongiosa of
+  cranium, pelvis, ribs and lumbar spine, medullary cavity, cartilage, skin, blood, muscle, liver,
+  brain, heart, kidney, stomach, spleen, adipose, lung, miscellaneous soft tissue). ICRP-145
+  phantoms read by tetdose keep the compositions of their own ``.material`` file.
+- Phantom materials ``pmma``, ``polystyrene`` (ESTAR, with I), ``solid_water`` (RMI-457);
+  implant metals ``titanium``, ``ti6al4v`` (ASTM F136), ``cocrmo`` (ASTM F75),
+  ``stainless_steel_316l`` (ASTM F138), nominal compositions.
+
+Any other composition is a :class:`~tetdose.core.composition.Material` (plan.toml
+``[materials.NAME]`` tables). The nominal density of each medium is the one its density effect is
+computed at; the lung media carry inflated lung's 0.26 g/cm³ (:data:`LUNG_NOMINAL_G_CM3`), not the
+1.05 g/cm³ of ICRU 44's tissue sample.
 
 Density classes (Schneider et al. 2000, Phys. Med. Biol. 45:459, style): a voxel or tetrahedron
 without a region label gets the material of the class its mass density falls in. Schneider bins
@@ -30,64 +49,31 @@ bone a region label with its own material when this matters.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import json
+from importlib import resources
 
 import numpy as np
 
 from tetdose._typing import FloatArray, IntArray
+from tetdose.core.composition import Material, material_from_symbols
 from tetdose.errors import PlanError
 
 _ICRU44 = "ICRU Report 44 (1989) via NIST SRD 126 Table 2 (Hubbell & Seltzer)"
-
-
-@dataclass(frozen=True)
-class Material:
-    """A homogeneous material: elemental mass fractions by atomic number Z.
-
-    ``mass_fractions`` is a tuple of ``(Z, w)`` pairs with Σw = 1 (checked to 1e-3 and used
-    normalised); ``density_g_cm3`` is the nominal density [g/cm³] (transport uses the mapped
-    density, this one is for reference); ``source`` names where the composition comes from.
-    """
-
-    name: str
-    mass_fractions: tuple[tuple[int, float], ...]
-    density_g_cm3: float
-    source: str
-
-    def __post_init__(self) -> None:
-        if not self.mass_fractions:
-            raise PlanError(f"material {self.name!r} has no elements; give (Z, fraction) pairs")
-        for z, w in self.mass_fractions:
-            if not (1 <= int(z) <= 100) or not (w >= 0.0):
-                raise PlanError(
-                    f"material {self.name!r}: element ({z}, {w}) is invalid; Z must be 1…100 "
-                    "and the mass fraction non-negative"
-                )
-        total = sum(w for _, w in self.mass_fractions)
-        if abs(total - 1.0) > 1e-3:
-            raise PlanError(
-                f"material {self.name!r}: mass fractions sum to {total:.6f}, not 1; "
-                "fix the composition"
-            )
-        if not self.density_g_cm3 > 0.0:
-            raise PlanError(f"material {self.name!r}: nominal density must be > 0 g/cm³")
-
-    @property
-    def elements(self) -> IntArray:
-        """Atomic numbers Z of the constituents."""
-        return np.array([z for z, _ in self.mass_fractions], dtype=np.intp)
-
-    @property
-    def weights(self) -> FloatArray:
-        """Mass fractions, normalised to sum to 1."""
-        w = np.array([w for _, w in self.mass_fractions], dtype=np.float64)
-        return w / w.sum()
+#: Nominal density [g/cm³] of the lung media (inflated lung; EGSnrc's LUNG521ICRU carries the
+#: same): the density at which their density effect is computed.
+LUNG_NOMINAL_G_CM3 = 0.26
 
 
 def _m(name: str, rho: float, source: str, **fractions: float) -> Material:
-    z_of = {"H": 1, "C": 6, "N": 7, "O": 8, "Na": 11, "Mg": 12, "P": 15, "S": 16, "Cl": 17,
-            "Ar": 18, "K": 19, "Ca": 20, "Fe": 26}
-    return Material(name, tuple((z_of[s], w) for s, w in fractions.items()), rho, source)
+    return material_from_symbols(name, fractions, rho, source)
+
+
+def _library() -> tuple[Material, ...]:
+    """The named media of ``data/compositions.json`` (sources in each entry)."""
+    text = resources.files("tetdose.transport.physics").joinpath("data/compositions.json")
+    return tuple(material_from_symbols(name, d["composition"], d["density_g_cm3"], d["source"],
+                                       d.get("mean_excitation_ev"))
+                 for name, d in json.loads(text.read_text())["materials"].items())
 
 
 #: Built-in materials by name. Sources: ICRU 44 via NIST SRD 126 Table 2.
@@ -97,7 +83,8 @@ MATERIALS: dict[str, Material] = {
         _m("water", 1.0, "NIST SRD 126 Table 2 (Water, Liquid)", H=0.111894, O=0.888106),
         _m("air", 0.00120479, "NIST SRD 126 Table 2 (Air, Dry, near sea level)",
            C=0.000124, N=0.755268, O=0.231781, Ar=0.012827),
-        _m("lung", 1.05, _ICRU44 + " (Lung Tissue)", H=0.103, C=0.105, N=0.031, O=0.749,
+        _m("lung", LUNG_NOMINAL_G_CM3, _ICRU44 + " (Lung Tissue; nominal density 0.26 g/cm³ of "
+           "inflated lung, not ICRU 44's 1.05, for the density effect)", H=0.103, C=0.105, N=0.031, O=0.749,
            Na=0.002, P=0.002, S=0.003, Cl=0.003, K=0.002),
         _m("adipose", 0.95, _ICRU44 + " (Adipose Tissue)", H=0.114, C=0.598, N=0.007,
            O=0.278, Na=0.001, S=0.001, Cl=0.001),
@@ -111,6 +98,7 @@ MATERIALS: dict[str, Material] = {
            Na=0.001, P=0.001, S=0.002, Cl=0.003, K=0.002, Fe=0.001),
         _m("cortical_bone", 1.92, _ICRU44 + " (Bone, Cortical)", H=0.034, C=0.155, N=0.042,
            O=0.435, Na=0.001, Mg=0.002, P=0.103, S=0.003, Ca=0.225),
+        *_library(),
     )
 }
 

@@ -36,7 +36,7 @@ photoelectric and incoherent are comparable; ``tests/unit/test_physics_tables.py
 ~1e-3 for either interpolation vs the direct evaluation. Coherent scattering is tabulated but
 not transported (see :mod:`tetdose.transport.physics._photon`).
 
-Tables built from material names are cached per (names, e_min, e_max, points_per_decade), and
+Tables are cached per (materials, e_min, e_max, points_per_decade), by name or composition, and
 all arrays are read-only, so a cached table cannot be altered by a caller.
 """
 
@@ -245,14 +245,11 @@ def build_cross_sections(
     n = ceil(decades·points_per_decade) + 1 points from e_min_mev to e_max_mev [MeV], uniform in
     ln(E). Raises :class:`PlanError` on unknown names or energies outside 1 keV–50 MeV.
 
-    When every entry is a name, the result is cached by (names, e_min_mev, e_max_mev,
-    points_per_decade): a repeated call returns the same read-only tables (and does not repeat
-    the absorption-edge warnings). :class:`Material` entries always build fresh tables.
+    The result is cached by (materials, e_min_mev, e_max_mev, points_per_decade), names and
+    :class:`Material` values alike (cached per composition): a repeated call returns the same
+    read-only tables (and does not repeat the absorption-edge warnings).
     """
-    names = tuple(material_names)
-    if all(isinstance(name, str) for name in names):
-        return _cached_tables(names, e_min_mev, e_max_mev, points_per_decade)
-    return _tables(names, e_min_mev, e_max_mev, points_per_decade)
+    return _cached_tables(tuple(material_names), e_min_mev, e_max_mev, points_per_decade)
 
 
 def _frozen(a: FloatArray) -> FloatArray:

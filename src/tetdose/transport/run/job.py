@@ -27,6 +27,9 @@ from tetdose.transport.geometry.world import MeshOnGrid, World, world_arrays
 from tetdose.transport.history._electron import N_COUNTS_DOSE, N_LEDGER_DOSE
 from tetdose.transport.history._photon import C_MISSED, N_COUNTS, N_LEDGER
 from tetdose.transport.history.result import DoseResult
+from tetdose.transport.physics.dose_to_water import DEFAULT_QUALITY, water_to_medium_ratio
+from tetdose.transport.physics.dose_to_water import METHOD as DOSE_TO_WATER_METHOD
+from tetdose.transport.physics.materials import Material, resolve_material
 from tetdose.transport.physics.xs import (
     DENSITY_CLASS_MATERIALS,
     CrossSections,
@@ -67,13 +70,14 @@ class TransportJob(NamedTuple):
 
     kind: str  # "mesh" | "voxel" | "hybrid"
     geom: WorldGeometry
-    names: list[str]  # material names, by material index
+    names: list[str | Material]  # material names (built-in) or compositions, by material index
     src: SourceArrays  # in the world's frame
     mass_g: FloatArray  # (M + V,) cell masses, mesh order then voxels [g]
     order: IntArray | None  # kernel tet i is mesh tet order[i]
     n_tets: int
     grid: ImageGrid | None
     particles: ParticleSources | None = None  # dose mode: e± beams, volume sources (src: photons)
+    material_of_cell: IntArray | None = None  # (M + V,) index into names, mesh order then voxels
 
 
 def assign_materials(mean_density_g_cm3: FloatArray, region: IntArray | None,
@@ -92,6 +96,23 @@ def assign_materials(mean_density_g_cm3: FloatArray, region: IntArray | None,
             mat[region == label] = names.index(name)
     used, mat = np.unique(mat, return_inverse=True)
     return np.ascontiguousarray(mat.astype(np.intp)), [names[i] for i in used]
+
+
+def plan_media(names: list[str], plan: Plan) -> list[str | Material]:
+    """Each material name as the tables take it: the plan's ``[materials.NAME]`` composition,
+    else the built-in name (checked: an unknown name is a :class:`PlanError` here)."""
+    out: list[str | Material] = [plan.compositions.get(n, n) for n in names]
+    for m in out:
+        resolve_material(m)
+    return out
+
+
+def media_record(names: list[str | Material]) -> dict[str, object]:
+    """Run-record entries: the material names by index and each one's composition, nominal
+    density (of its density effect), I and source."""
+    mats = [resolve_material(m) for m in names]
+    return {"materials": [m.name for m in mats],
+            "compositions": {m.name: m.record() for m in mats}}
 
 
 def build_job(world: World, plan: Plan, settings: TransportSettings
@@ -116,8 +137,9 @@ def build_job(world: World, plan: Plan, settings: TransportSettings
     else:
         refuse_in_kerma_mode(plan)
         src = source_arrays(plan, settings, to_frame)
-    job = TransportJob(world.kind, arrays.geometry, arrays.material_names, src, arrays.mass_g,
-                       arrays.order, n_tets, grid, particles)
+    job = TransportJob(world.kind, arrays.geometry, plan_media(arrays.material_names, plan), src,
+                       arrays.mass_g,
+                       arrays.order, n_tets, grid, particles, arrays.material_of_cell)
     return job, arrays.on_grid
 
 
@@ -275,7 +297,20 @@ def physics_record(settings: TransportSettings) -> dict[str, object]:
                    photon_splitting=settings.photon_splitting,
                    range_rejection_mev=settings.range_rejection_mev,
                    photon_tracking=settings.photon_tracking)
+    rec["dose_to"] = settings.dose_to
     return rec
+
+
+def water_factors(names: list[str | Material], settings: TransportSettings
+                  ) -> tuple[FloatArray, dict[str, object]]:
+    """Per material: the factor from the tallied energy to the reported one (s_w,m for dose to
+    water, else 1), and the record of the conversion."""
+    if settings.dose_to != "water":
+        return np.ones(len(names)), {}
+    ratios = {resolve_material(m).name: water_to_medium_ratio(m) for m in names}
+    return np.array(list(ratios.values())), {"dose_to_water": {
+        "method": DOSE_TO_WATER_METHOD.format(quality=DEFAULT_QUALITY),
+        "s_w_m": ratios}}
 
 
 def assemble(job: TransportJob, on_grid: MeshOnGrid | None, plan: Plan,
@@ -287,14 +322,18 @@ def assemble(job: TransportJob, on_grid: MeshOnGrid | None, plan: Plan,
     energy = np.concatenate([r[0] for r in rows])
     if job.order is not None:
         energy[:, job.order] = energy[:, :job.n_tets].copy()
+    factor, conversion = water_factors(job.names, settings)
+    if job.material_of_cell is not None and conversion:
+        energy *= factor[job.material_of_cell][None, :]  # D_w = D_m · s_w,m, same mass
     ledger = np.concatenate([r[1] for r in rows])
     counts = np.concatenate([r[2] for r in rows])
     if per_batch is None:
         per_batch = batch_histories(settings)
     result = DoseResult(energy, per_batch, job.mass_g, ledger, counts, plan.particles,
                         settings.seed, settings.estimator, job.kind, wall_s, __version__,
-                        job.grid, {"materials": job.names, "n_cells": len(job.mass_g),
-                                   **physics_record(settings), **_mix(plan), **(extra or {})},
+                        job.grid, {**media_record(job.names), "n_cells": len(job.mass_g),
+                                   **physics_record(settings), **_mix(plan), **conversion,
+                                   **(extra or {})},
                         n_tets=job.n_tets, on_grid=on_grid)
     if not np.any(energy):
         warnings.warn("the dose is zero everywhere: no photon interacted in the world (is it "

@@ -35,6 +35,8 @@ PHOTON_TRACKING = ("woodcock", "walk")
 #: Defaults of the electron settings (cut-off [MeV], ESTEPE).
 ELECTRON_CUTOFF_MEV = 0.2
 MAX_ENERGY_LOSS_FRACTION = 0.25
+#: What the dose is reported in (`--dose-to`): the medium (D_m, as transported) or water (D_w).
+DOSE_TO = ("medium", "water")
 #: Default photon splitting of dose mode (copies of each source photon).
 PHOTON_SPLITTING = 1
 #: Default largest electron energy of range rejection [MeV] (0: off).
@@ -70,6 +72,8 @@ class TransportSettings:
     range_rejection_mev: float = RANGE_REJECTION_MEV
     #: Dose mode's photon flights through the mesh: "woodcock" (delta tracking) or "walk".
     photon_tracking: str = "woodcock"
+    #: "medium" (D_m) or "water" (D_w = D_m · s_w,m, :mod:`tetdose.transport.physics.dose_to_water`).
+    dose_to: str = "medium"
 
     def __post_init__(self) -> None:
         if int(self.n_batches) < 2:
@@ -105,6 +109,11 @@ class TransportSettings:
         if not 1 <= int(self.photon_splitting) <= 1000:
             raise PlanError(f"photon_splitting must be an integer in [1, 1000] (1 = none), got "
                             f"{self.photon_splitting}")
+        if self.dose_to not in DOSE_TO:
+            raise PlanError(f"dose_to {self.dose_to!r} is unknown; use one of {DOSE_TO}")
+        if self.dose_to == "water" and self.physics != "dose":
+            raise PlanError("dose to water converts absorbed dose by stopping-power ratios; "
+                            "use physics='dose' with dose_to='water' (kerma is in the medium)")
         if not 0.0 <= self.range_rejection_mev <= 20.0:
             raise PlanError(f"range_rejection_mev must lie in [0, 20] MeV (0 = off), got "
                             f"{self.range_rejection_mev}")
