@@ -101,19 +101,18 @@ def _phase_beam(beam: LinacBeam, pieces: list) -> LinacBeam:
     """``beam``'s pieces delivered in one phase as one beam (module doc)."""
     cps, w = [], 0.0
     for _phase, a, b, turns, mu, u1, u2 in pieces:
-        start, end = _piece(beam, a, b, turns, u1, u2)
-        cps.append(replace(start, meterset_weight=w))
+        cps.extend(_piece(beam, a, b, turns, u1, u2, w, w + mu))
         w += mu
-        cps.append(replace(end, meterset_weight=w))
     return replace(beam, control_points=tuple(cps), meterset=w, isocenter_region=None)
 
 
 def _piece(beam: LinacBeam, a: ControlPoint, b: ControlPoint, turns: tuple[float, ...],
-           u1: float, u2: float) -> tuple[ControlPoint, ControlPoint]:
+           u1: float, u2: float, w1: float, w2: float) -> tuple[ControlPoint, ControlPoint]:
     """The machine states at u1 and u2 of interval a → b, with the rotation directions of the
-    turns between them."""
+    turns between them and the cumulative meterset weights w1, w2."""
     names = ("gantry", "collimator", "couch")
-    start, end = {}, {}
+    start: dict = {"meterset_weight": w1}
+    end: dict = {"meterset_weight": w2}
     for name, turn in zip(names, turns, strict=True):
         a0 = getattr(a, f"{name}_deg")
         piece = (u2 - u1) * turn
