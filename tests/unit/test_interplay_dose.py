@@ -88,11 +88,13 @@ def test_cli_fraction_and_course(tmp_path, capsys):
     assert sum(d["mu_per_phase"]) == pytest.approx(100.0)
     assert d["delivery_s"] == pytest.approx(30.0) and d["trace"]["start_phase_percent"] == 30.0
     assert main([*common, "--breathing-period-s", "4", "--start-phase", "random",
-                 "--fractions", "3", "--target", "tumour", "-o", str(tmp_path / "course")]) == 0
+                 "--fractions", "3", "--target", "tumour", "--static-phase", "50",
+                 "-o", str(tmp_path / "course")]) == 0
     out = capsys.readouterr().out
-    assert "static plan" in out and "n=2" in out
+    assert "static 50 %" in out and "n=2" in out
     rep = json.loads((tmp_path / "course" / "summary.json").read_text())
     r = rep["interplay"]
+    assert r["static_phase_percent"] == 50.0
     assert len(r["per_fraction"]) == 3
     assert len({t["start_phase_percent"] for t in rep["starts"]}) == 3
     assert r["fraction_mean"]["mean"] == pytest.approx(np.mean([p["mean"] for p in
@@ -125,3 +127,26 @@ def test_cli_refuses_a_prescription(tmp_path, capsys):
                  str(tmp_path / "plan.toml"), "--breathing-period-s", "4",
                  "-o", str(tmp_path / "o")]) == 2
     assert "hides the interplay" in capsys.readouterr().err
+
+
+@pytest.mark.slow  # 38 s at load 15 (ompmc start-up per phase, the virtual phase CTs)
+def test_interplay_with_ompmc_on_the_phase_cts(setup):
+    """--engine ompmc: each phase's share through ompmc on its body CT (tetdose's sampler of
+    the cut arc): a trace in phase 1 sends it every MU, and the fraction is that phase's run."""
+    pytest.importorskip("ompmc", reason="ompmc (tetdose[ompmc]) is not installed")
+    from tetdose.core.image import Image
+    from tetdose.coupling.ompmc import OmpmcOptions, phase_engine
+
+    from helpers import grid_for
+
+    s, plan, _tw, tl = setup
+    grid = grid_for([-10, -10, -10], [50, 50, 50], [5, 5, 5])
+    ct = Image(np.full(grid.shape, -700, dtype=np.int16), grid)
+    run = run_interplay(s, plan, TransportSettings(2000, 4, 3), tl, np.array([0.0]),
+                        np.array([1]), ct_hu=ct,
+                        voxel_engine=phase_engine(OmpmcOptions(electron_cutoff_mev=15.0)))
+    assert run.delivery["mu_per_phase"] == pytest.approx([0.0, 100.0, 0.0])
+    assert [r.extra["engine"] for r in run.results] == ["ompmc"]
+    assert run.results[0].n_histories == 3 * 2000
+    np.testing.assert_allclose(run.accumulated.dose_gy, run.results[0].dose_gy, rtol=1e-12)
+    assert run.accumulated.dose_gy.max() > 0

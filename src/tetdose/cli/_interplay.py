@@ -43,6 +43,9 @@ def add_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--target", metavar="STRUCTURE",
                    help="with --fractions: the target ([regions] name or label) whose D95, "
                         "D2 and mean dose are reported")
+    g.add_argument("--static-phase", type=float, metavar="PERCENT",
+                   help="with --fractions: the phase of the static plan (the planning "
+                        "geometry; default the first phase)")
 
 
 def wanted(args: argparse.Namespace) -> bool:
@@ -50,7 +53,8 @@ def wanted(args: argparse.Namespace) -> bool:
     timed = args.breathing_trace is not None or args.breathing_period_s is not None
     extra = [o for o, v in (("--start-phase", args.start_phase), ("--target", args.target),
                             ("--phase-amplitudes-mm", args.phase_amplitudes_mm),
-                            ("--fractions", args.fractions != 1 or None)) if v is not None]
+                            ("--fractions", args.fractions != 1 or None),
+                            ("--static-phase", args.static_phase)) if v is not None]
     if not timed and extra:
         raise OptionError(f"{extra[0]} belongs to the delivery in time: give --breathing-trace "
                           "trace.csv or --breathing-period-s S")
@@ -120,7 +124,9 @@ def run(args: argparse.Namespace, series: PhaseSeries, plan: Any, settings: Any,
               f"phase {mu}: one fraction's dose max {result.accumulated.dose_gy.max():.4g} "
               f"{unit} → {args.output}")
         return 0
-    fc = run_fractions(series, plan, settings, timeline, course, args.target, **kwargs)
+    static = 0 if args.static_phase is None else int(
+        np.argmin(np.abs(series.phase_percent - args.static_phase)))
+    fc = run_fractions(series, plan, settings, timeline, course, args.target, static, **kwargs)
     report = fc.report(args.seed)
     wall = time.perf_counter() - t_start
     _write_course(fc, report, timeline, wall, unit, args.output)
@@ -152,7 +158,7 @@ def _print_course(rep: dict[str, Any], timeline: Timeline, wall: float, unit: st
         print(f"{f:>8}      " + "".join(f"{p[m]:12.4g}" for m in METRICS))
     for name, key in (("mean", "fraction_mean"), ("SD", "fraction_sd"),
                       ("course mean", "course_mean"), ("4D (time)", "time_weighted_4d"),
-                      ("static plan", "static_plan")):
+                      (f"static {rep['static_phase_percent']:g} %", "static_plan")):
         print(f"{name:<14}" + "".join(f"{rep[key][m]:12.4g}" for m in METRICS))
     d95 = rep["time_weighted_4d"]["D95"]
     spread = ", ".join(f"n={s['n']}: {100 * s['sd_D95'] / d95:.2f} %"

@@ -5,8 +5,8 @@ breathing cycle (random streams f·K + p, so fractions and the time-weighted run
 0..K−1, are independent). The course's mean dose per fraction is the energy over the mass,
 D̄ = Σ_f E_f / Σ_f m_f per tet, and converges to the time-weighted 4D dose as N grows (the
 interplay averages out, Bortfeld et al., Phys. Med. Biol. 47:2203, 2002; the per-fraction spread
-of a target metric shrinks about as 1/√n over n fractions). The static plan is phase 0 of the
-time-weighted run: the whole plan on the reference phase (the planning geometry).
+of a target metric shrinks about as 1/√n over n fractions). The static plan is one phase of the
+time-weighted run (``static_phase``, default 0): the whole plan on the planning geometry.
 
 The target's D95, D2 (dose to the hottest 95 %, 2 % of its mass) and mean dose are reported per
 fraction, for the mean of the course and for both references; the spread of the mean of n
@@ -53,6 +53,7 @@ class FractionCourse:
     time_weighted: Dose4D
     target: np.ndarray  # boolean mask of the target's tets
     target_name: str
+    static_phase: int = 0
 
     def mean_dose(self, which: Sequence[int] | None = None) -> FloatArray:
         """D̄ [Gy per fraction, the runs' unit] of fractions ``which`` (default all)."""
@@ -71,7 +72,7 @@ class FractionCourse:
         time-weighted 4D dose and the static plan, and the spread of n-fraction means."""
         acc = self.time_weighted.accumulated
         per = [self.metrics(f.accumulated.dose_gy, f.accumulated.mass_g) for f in self.fractions]
-        static = self.time_weighted.results[0].mesh_part()
+        static = self.time_weighted.results[self.static_phase].mesh_part()
         out: dict[str, Any] = {
             "target": self.target_name, "fractions": len(per), "per_fraction": per,
             "fraction_mean": {m: float(np.mean([p[m] for p in per])) for m in METRICS},
@@ -80,6 +81,8 @@ class FractionCourse:
             "course_mean": self.metrics(self.mean_dose(), acc.mass_g),
             "time_weighted_4d": self.metrics(acc.dose_gy, acc.mass_g),
             "static_plan": self.metrics(static.dose_gy, static.mass_g),
+            "static_phase_percent": float(
+                self.time_weighted.series.phase_percent[self.static_phase]),
             "statistical_rel_sd_mean_dose": self._noise(),
             "spread_of_n_fraction_mean": self._spread(seed)}
         return out
@@ -113,14 +116,16 @@ class FractionCourse:
 
 def run_fractions(series: PhaseSeries, plan: Plan, settings: TransportSettings,
                   timeline: Timeline, starts: Sequence[Start], target: str | int,
-                  **kwargs: Any) -> FractionCourse:  # noqa: ANN401
+                  static_phase: int = 0, **kwargs: Any) -> FractionCourse:  # noqa: ANN401
     """The time-weighted 4D run and one interplay fraction per ``starts`` (module doc);
     ``kwargs`` as :func:`~tetdose.dose.interplay.run_interplay` (``ct_hu``, ``phase_ct``, ...)."""
     check_interplay_plan(plan)
     plan = plan.resolved(series.reference)
     mask = region_cells(series.reference, None, region_label(target, plan.regions))
     tw = run_dose4d(series, plan, settings, **kwargs)
+    if tw.voxel is not None:  # the phases' bodies, computed once
+        kwargs = {**kwargs, "phase_density": tw.voxel.density}
     fr = [run_interplay(series, plan, settings, timeline, s.starts_s, s.phase_index,
                         t0_s=s.t0_s, fraction=f + 1, trace=s.trace, **kwargs)
           for f, s in enumerate(starts)]
-    return FractionCourse(fr, tw, mask, str(target))
+    return FractionCourse(fr, tw, mask, str(target), static_phase)
