@@ -110,8 +110,8 @@ def _run_compare(args: argparse.Namespace) -> int:
         recorded_dose_unit,
     )
     from tetdose.core.io import read_ct, read_image
-    from tetdose.meshing.labels import body_mask
     from tetdose.dose.dose_to import recorded_dose_to, require_same
+    from tetdose.meshing.labels import body_mask
 
     check_output(args, folder=True)
     mesh_path = _find(args.mesh_dose, "accumulated", MESH_SUFFIXES, "mesh")

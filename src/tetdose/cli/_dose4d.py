@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from tetdose.cli import _interplay
 from tetdose.cli._common import add_calibration_arg, calibration_from, check_output, int_at_least
 from tetdose.cli._dose import (
     add_dask_arg,
@@ -47,10 +48,12 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--batches-per-task", type=int_at_least(1), default=1,
                    help="with --dask: batches per dask task (default 1)")
     add_engine_args(p)
+    _interplay.add_args(p)
 
 
 def run(args: argparse.Namespace) -> int:
     check_output(args, folder=True)
+    timed = _interplay.wanted(args)
     series = PhaseSeries.read(None, args.phases)
     plan = Plan.from_toml(args.plan)
     settings = run_settings(args)
@@ -80,10 +83,12 @@ def run(args: argparse.Namespace) -> int:
                               "reference CT, virtual phase CTs) or --ct4d (the real ones)")
         engine = phase_engine(ompmc_options(args), progress=False if args.quiet else None)
     with dask_context(args.dask) as client:
-        result = run_dose4d(series, plan, settings, ct_hu=ct, calibration=calibration_from(args),
-                            phase_ct=phase_ct, dvfs=dvfs, progress=not args.quiet,
-                            client=client, batches_per_task=args.batches_per_task,
-                            voxel_engine=engine)
+        kwargs = {"ct_hu": ct, "calibration": calibration_from(args), "phase_ct": phase_ct,
+                  "dvfs": dvfs, "progress": not args.quiet, "client": client,
+                  "batches_per_task": args.batches_per_task, "voxel_engine": engine}
+        if timed:
+            return _interplay.run(args, series, plan, settings, kwargs, _unit(plan))
+        result = run_dose4d(series, plan, settings, **kwargs)
     write_dose4d(result, args.output)
     unit = result.summary()["units"]["dose"]
     if unit == PER_PHOTON_UNIT and plan.particles != 1.0:
@@ -91,3 +96,13 @@ def run(args: argparse.Namespace) -> int:
     print(f"{series.n_phases} phases × {settings.n_histories} histories: accumulated dose max "
           f"{result.accumulated.dose_gy.max():.4g} {unit} → {args.output}")
     return 0
+
+
+def _unit(plan: Plan) -> str:
+    """The dose unit of an interplay run's outputs (no prescription there)."""
+    if plan.calibration is not None:
+        from tetdose.plan.mu_calibration import MU_UNIT
+
+        return MU_UNIT
+    return PER_PHOTON_UNIT if plan.particles == 1.0 else \
+        f"Gy per {plan.particles:g} source photons"

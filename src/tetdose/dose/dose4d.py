@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import json
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -95,6 +95,8 @@ class Dose4D:
     accumulated: AccumulatedDose
     voxel: VoxelDose4D | None
     body: BodyDose4D | None = None
+    #: The delivery in time when the phases got only their share of it (dose.interplay).
+    delivery: dict[str, object] | None = None
 
     @property
     def dose_to(self) -> str:
@@ -126,6 +128,8 @@ class Dose4D:
             out["source_mix"] = self.results[0].extra["source_mix"]
         if "dose_to_water" in self.results[0].extra:
             out["dose_to_water"] = self.results[0].extra["dose_to_water"]
+        if self.delivery is not None:
+            out["delivery"] = self.delivery
         if self.body is not None:
             out["body_accumulated_max_dose_gy"] = float(self.body.accumulated.array.max())
             out["combined_accumulated_max_dose_gy"] = float(self.body.combined.array.max())
@@ -137,7 +141,9 @@ def run_dose4d(series: PhaseSeries, plan: Plan, settings: TransportSettings, *,
                phase_density: list[Image] | None = None, phase_ct: list[Image] | None = None,
                dvfs: list[DisplacementField] | None = None, progress: bool = False,
                client: Any = None, batches_per_task: int = 1,  # noqa: ANN401
-               voxel_engine: VoxelEngine | None = None) -> Dose4D:
+               voxel_engine: VoxelEngine | None = None,
+               phase_plans: Sequence[Plan] | None = None,
+               phase_settings: Sequence[TransportSettings] | None = None) -> Dose4D:
     """Transport ``plan`` on every phase of ``series`` (which must carry densities).
 
     With ``ct_hu`` every phase runs in the hybrid world — the phase mesh inside the phase's body
@@ -154,6 +160,10 @@ def run_dose4d(series: PhaseSeries, plan: Plan, settings: TransportSettings, *,
     transport: it runs on each phase's body CT (``ct_hu`` or ``phase_ct`` required) and returns
     (the phase's mesh result, its voxel result) — the voxel dose put on the tets by energy — which
     are accumulated as tetdose's own (the voxel way too; there is no hybrid body part).
+
+    ``phase_plans`` / ``phase_settings`` (one per phase, e.g. from :mod:`tetdose.dose.interplay`):
+    phase k transports its own plan with its own settings (histories and stream as given)
+    instead of ``plan`` with stream k; the absolute scale still comes from ``plan``.
     """
     if series.density_g_cm3 is None:
         raise MeshError("the phases carry no density; run the density update first "
@@ -169,14 +179,26 @@ def run_dose4d(series: PhaseSeries, plan: Plan, settings: TransportSettings, *,
                              "per phase")
         for img in density[1:]:
             density[0].grid.require_same(img.grid, "the phase CTs")
+    plans = [plan] * n if phase_plans is None else list(phase_plans)
+    sets = ([replace(settings, stream=k) for k in range(n)] if phase_settings is None
+            else list(phase_settings))
+    if len(plans) != n or len(sets) != n:
+        raise MeshError(f"{len(plans)} plans and {len(sets)} settings for {n} phases; give "
+                        "one per phase")
     if voxel_engine is not None:
-        return _with_engine(series, plan, settings, meshes, density, voxel_engine)
+        return _with_engine(series, plan, plans, sets, meshes, density, voxel_engine)
     worlds = [World(mesh=m, density=None if density is None else density[k])
               for k, m in enumerate(meshes)]
     geoms: list[World | TetMesh | Image] = [*worlds, *(density or [])]
-    streams = [replace(settings, stream=k % n) for k in range(len(geoms))]
-    results = simulate_on(client, geoms, plan, streams, batches_per_task=batches_per_task,
-                          progress=progress, desc="dose per phase (mesh, then voxels)")
+    if phase_plans is None:
+        streams = [replace(settings, stream=k % n) for k in range(len(geoms))]
+        results = simulate_on(client, geoms, plan, streams, batches_per_task=batches_per_task,
+                              progress=progress, desc="dose per phase (mesh, then voxels)")
+    else:
+        each = [simulate_on(client, [geoms[k], *([density[k]] if density else [])], plans[k],
+                            sets[k], batches_per_task=batches_per_task, progress=False)
+                for k in range(n)]
+        results = [r[0] for r in each] + [r[1] for r in each if len(r) > 1]
     parts = [r.mesh_part() for r in results[:n]]
     accumulated = accumulate_meshes(meshes, [r.dose_gy for r in parts],
                                     weights=series.time_weight,
@@ -189,15 +211,14 @@ def run_dose4d(series: PhaseSeries, plan: Plan, settings: TransportSettings, *,
     return absolute_dose4d(Dose4D(series, results[:n], accumulated, voxel, body), plan)
 
 
-def _with_engine(series: PhaseSeries, plan: Plan, settings: TransportSettings,
-                 meshes: list[TetMesh], density: list[Image] | None,
-                 engine: VoxelEngine) -> Dose4D:
-    """Every phase's body CT through ``engine`` (stream k for phase k), accumulated."""
+def _with_engine(series: PhaseSeries, plan: Plan, plans: list[Plan],
+                 sets: list[TransportSettings], meshes: list[TetMesh],
+                 density: list[Image] | None, engine: VoxelEngine) -> Dose4D:
+    """Every phase's body CT through ``engine`` (its plan and settings), accumulated."""
     if density is None:
         raise ImageError("the voxel engine runs on each phase's CT: give the reference CT "
                          "(--like) or the phase CTs (--ct4d)")
-    pairs = [engine(density[k], m, plan, replace(settings, stream=k))
-             for k, m in enumerate(meshes)]
+    pairs = [engine(density[k], m, plans[k], sets[k]) for k, m in enumerate(meshes)]
     results = [p[0] for p in pairs]
     accumulated = accumulate_meshes(meshes, [r.dose_gy for r in results],
                                     weights=series.time_weight,

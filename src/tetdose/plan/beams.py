@@ -67,6 +67,9 @@ ROTATIONS = ("CW", "CC", "NONE")
 CW_SENSE = {"gantry": 1.0, "collimator": 1.0, "couch": -1.0}
 #: MLC leaf travel directions: "X" (MLCX) or "Y" (MLCY) of the beam limiting device system.
 MLC_AXES = ("X", "Y")
+#: Delivery keys of a plan.toml linac beam (the machine's limits, :mod:`tetdose.plan.delivery`).
+MACHINE_KEYS = ("dose_rate_mu_per_min", "max_gantry_deg_per_s", "max_leaf_mm_per_s",
+                "beam_gap_s")
 
 
 def _rot_y(deg: float) -> FloatArray:
@@ -269,6 +272,8 @@ class LinacBeam:
     meterset: float = 1.0
     isocenter_region: str | None = None
     fluence_mode: str = "STANDARD"
+    #: Delivery limits of :data:`MACHINE_KEYS` given for this beam (:mod:`tetdose.plan.delivery`).
+    machine: Mapping[str, float] = field(default_factory=dict)
     energies_mev: FloatArray = field(init=False, repr=False)
     line_weights: FloatArray = field(init=False, repr=False)
 
@@ -338,7 +343,7 @@ def same_state(a: ControlPoint, b: ControlPoint) -> bool:
 
 _LINAC_KEYS = {"type", "name", "spectrum", "isocenter_mm", "isocenter", "gantry_deg",
                "collimator_deg", "couch_deg", "sad_mm", "jaws_mm", "mlc", "weight",
-               "control_points", "arc", "fluence_mode"}
+               "control_points", "arc", "fluence_mode", *MACHINE_KEYS}
 _CP_KEYS = {"gantry_deg", "collimator_deg", "couch_deg", "jaws_mm", "mlc", "meterset_weight",
             "gantry_direction", "collimator_direction", "couch_direction", "isocenter_mm"}
 _ARC_KEYS = {"start_deg", "stop_deg", "direction"}
@@ -384,12 +389,27 @@ def linac_beam_from_dict(d: Mapping[str, Any], i: int, patient_position: str,
                          float(d.get("sad_mm", 1000.0)), patient_position,
                          float(d.get("weight", 1.0)),
                          None if region is None else str(region),
-                         str(d.get("fluence_mode", "STANDARD")))
+                         str(d.get("fluence_mode", "STANDARD")), _machine(d))
     except (KeyError, TypeError, ValueError) as exc:
         raise PlanError(f"{where}: malformed linac beam ({exc}); mlc needs boundaries_mm and "
                         "positions_mm, control points need meterset_weight") from None
     except PlanError as exc:
         raise PlanError(f"{where}: {exc}") from None
+
+
+def _machine(d: Mapping[str, Any]) -> dict[str, float]:
+    """The delivery limits of :data:`MACHINE_KEYS` a linac table gives (positive numbers; the
+    gap between beams may be 0)."""
+    out = {}
+    for key in MACHINE_KEYS:
+        if key not in d:
+            continue
+        v = d[key]
+        ok = isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
+        if not ok or v < 0.0 or (v == 0.0 and key != "beam_gap_s"):
+            raise PlanError(f"{key} = {v!r} must be a positive number (beam_gap_s may be 0)")
+        out[key] = float(v)
+    return out
 
 
 def _control_points_from_dict(d: Mapping[str, Any], where: str) -> tuple[ControlPoint, ...]:
