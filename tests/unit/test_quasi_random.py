@@ -73,8 +73,8 @@ def test_primary_kerma_is_unbiased_and_much_less_noisy():
     _assert_same_energy(pr, qr, field)
     z = (qr.dose_gy - pr.dose_gy)[field] / np.hypot(qr.dose_std_gy, pr.dose_std_gy)[field]
     assert np.mean(np.abs(z) < 3.0) > 0.9  # voxels of a column share photons: not independent
-    gain = np.median((pr.dose_std_gy[field] / qr.dose_std_gy[field]) ** 2)
-    assert gain > 4.0, gain
+    # variance gain > 4 (σ may be exactly 0 in a quasi-random voxel no photon interacted in)
+    assert 4.0 * np.median(qr.dose_std_gy[field] ** 2) < np.median(pr.dose_std_gy[field] ** 2)
 
 
 def test_absorbed_dose_agrees_with_the_pseudo_random_run():
