@@ -81,7 +81,7 @@ def test_dose4d_runs_each_phase_to_the_target_and_its_voxel_body_as_long():
     ref = replace(ref, region=np.ones(ref.n_tets, dtype=np.int32))
     series = update_series(BreathingModel(amplitude_mm=4.0).series(ref, 2),
                            np.full(ref.n_points, 0.9))[0]
-    grid = grid_for([0, 0, 0], [40, 40, 40], [10, 10, 10])
+    grid = grid_for([-10, -10, -10], [50, 50, 50], [10, 10, 10])
     ct = Image(np.full(grid.shape, -100, dtype=np.int16), grid)
     beam = PhotonSource("parallel", [20, 20, -60], [0, 0, 1], energies_mev=[1.25], field_mm=[30, 30])
     plan = Plan((beam,), regions={"core": 1})
