@@ -141,3 +141,13 @@ def test_median_statistic_is_the_median_cell_sigma_and_stops_the_run():
     assert np.median(res.relative_uncertainty[core]) == pytest.approx(t["achieved"], rel=1e-9)
     with pytest.raises(PlanError, match="target_statistic"):
         TransportSettings(100, 4, target_statistic="max")
+
+
+def test_ompmc_refuses_the_median_statistic():
+    from tetdose.coupling.ompmc import _target_weights
+    from tetdose.errors import OptionError
+
+    _, plan = _world_and_plan()
+    st = TransportSettings(100, 4, target_uncertainty=0.1, target_statistic="median")
+    with pytest.raises(OptionError, match="target-statistic median"):
+        _target_weights(None, None, None, plan, st)
