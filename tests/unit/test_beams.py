@@ -102,7 +102,7 @@ def _samples(plan, n):
     src = source_arrays(plan, TransportSettings(n_histories=10, n_batches=2, physics="kerma"))
     out = np.empty((n, 7))
     for i in range(n):
-        _, *vals = sample_source(src, np.uint64(seed_for(7, 0, i)))
+        _, *vals = sample_source(src, np.uint64(seed_for(7, 0, i)), np.empty(0))
         out[i] = vals
     return out
 

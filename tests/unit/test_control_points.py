@@ -85,7 +85,7 @@ def _beam(cps, pos="HFS", iso=(0.0, 0.0, 0.0), meterset=1.0):
 
 def _samples(sources, n, seed=5):
     src = source_arrays(_PlanOf(sources), SETTINGS)
-    return np.array([sample_source(src, np.uint64(seed_for(seed, 0, i)))[2:] for i in range(n)])
+    return np.array([sample_source(src, np.uint64(seed_for(seed, 0, i)), np.empty(0))[2:] for i in range(n)])
 
 
 class _PlanOf:
@@ -247,7 +247,7 @@ def test_kernel_axes_match_beam_axes_through_the_grid_frame():
     src = source_arrays(plan, SETTINGS, to_frame)
     seg = plan.sources[0]
     for i in range(200):
-        p = sample_source(src, np.uint64(seed_for(2, 0, i)))[2:5]
+        p = sample_source(src, np.uint64(seed_for(2, 0, i)), np.empty(0))[2:5]
         patient = np.asarray(p) @ q.T + shift
         t, miss = _recover_t(seg, patient)
         assert miss < 1e-4  # mm: t is found to ~1e-9 (a 40° turn at SAD 1 m: 0.7 µm)

@@ -133,7 +133,7 @@ def test_vmat_photons_start_on_the_arc_and_pass_the_leaves_of_their_gantry_angle
     segs = plan.sources
     starts = np.array([s.start.gantry_deg for s in segs])
     for i in range(3000):
-        _, _e, x, y, z, u, v, w = sample_source(src, np.uint64(seed_for(3, 0, i)))
+        _, _e, x, y, z, u, v, w = sample_source(src, np.uint64(seed_for(3, 0, i)), np.empty(0))
         p, d = np.array([x, y, z]) - ISO, np.array([u, v, w])
         assert np.linalg.norm(p) == pytest.approx(1000.0) and abs(p[2]) < 1e-9  # HFS: gantry plane
         g = np.degrees(np.arctan2(p[0], -p[1])) % 360.0
@@ -172,7 +172,7 @@ def test_sampled_static_sources_match_the_control_points(tmp_path):
     norm = sum(e[4] for e in expected)
     n, counts = 6000, np.zeros(3)
     for i in range(n):
-        _, _e, x, y, z, u, v, w = sample_source(src, np.uint64(seed_for(3, 0, i)))
+        _, _e, x, y, z, u, v, w = sample_source(src, np.uint64(seed_for(3, 0, i)), np.empty(0))
         p, d = np.array([x, y, z]), np.array([u, v, w])
         k = int(np.argmin([np.linalg.norm(p - e[0]) for e in expected]))
         src_pos, ax, sad, rects, _ = expected[k]

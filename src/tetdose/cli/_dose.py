@@ -33,6 +33,7 @@ from tetdose.transport.run.settings import (
     PHOTON_TRACKING,
     PHYSICS,
     RANGE_REJECTION_MEV,
+    TARGET_STATISTICS,
 )
 
 MESH_SUFFIXES = (".vtu", ".vtk", ".xdmf", ".msh")
@@ -64,6 +65,10 @@ def add_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("-o", "--output", type=Path, required=True,
                         help="dose.vtu (with --mesh, also with --ct) or dose.nrrd / .mha / "
                              ".nii.gz (--ct alone)")
+    parser.add_argument("--vertex-dose", action="store_true",
+                        help="with --mesh: also the dose on the vertices (mass-weighted L2 "
+                        "projection onto the linear basis), point_data dose_vertex and "
+                        "dose_vertex_std [Gy]")
     add_dask_arg(parser)
     add_engine_args(parser)
 
@@ -123,6 +128,9 @@ def add_run_args(parser: argparse.ArgumentParser, per: str = "") -> None:
     parser.add_argument("--photon-tracking", choices=PHOTON_TRACKING, default="woodcock",
                         help="dose mode: photons cross the mesh by Woodcock (delta) tracking "
                         "(default) or walk it tet by tet (same dose within statistics)")
+    parser.add_argument("--quasi-random", action="store_true",
+                        help="source particles' position, energy and beam from scrambled Sobol "
+                        "points, one independent scramble per batch (unbiased; less noise)")
 
     parser.add_argument("--dose-to", choices=("medium", "water"), default="medium",
                         help="report dose to medium (D_m, default) or dose to water (D_w = D_m "
@@ -134,6 +142,9 @@ def add_run_args(parser: argparse.ArgumentParser, per: str = "") -> None:
                              "(runs here, not with --dask; more --batches stop finer)")
     parser.add_argument("--target-region", metavar="NAME|LABEL",
                         help="structure of --target-uncertainty (default: the prescription's)")
+    parser.add_argument("--target-statistic", choices=TARGET_STATISTICS, default="mean",
+                        help="what --target-uncertainty bounds: the σ of the structure's mean "
+                        "dose (default), or the median σ of its tets/voxels")
 
 
 def relative_uncertainty(text: str) -> float:
@@ -159,11 +170,13 @@ def run_settings(args: argparse.Namespace, **kw: Any) -> Any:  # noqa: ANN401
     return TransportSettings(n_histories=int(args.histories), n_batches=args.batches,
                              seed=args.seed, estimator=args.estimator,
                              target_uncertainty=args.target_uncertainty,
-                             target_region=args.target_region, physics=args.physics,
+                             target_region=args.target_region,
+                             target_statistic=args.target_statistic, physics=args.physics,
                              electron_cutoff_mev=args.electron_cutoff_mev,
                              photon_splitting=args.photon_splitting,
                              range_rejection_mev=args.range_rejection_mev,
-                             photon_tracking=args.photon_tracking, dose_to=args.dose_to, **kw)
+                             photon_tracking=args.photon_tracking, dose_to=args.dose_to,
+                             quasi_random=args.quasi_random, **kw)
 
 
 def add_dask_arg(parser: argparse.ArgumentParser) -> None:
@@ -272,6 +285,9 @@ def run(args: argparse.Namespace) -> int:
                      hu_beyond_calibration=beyond.as_dict())
         plan, labels, extra["ct_materials"] = ct_materials(args.ct_materials, plan, ct, cal,
                                                            labels)
+    if args.vertex_dose and (mesh is None or args.engine == "ompmc"):
+        raise OptionError("--vertex-dose projects the mesh's dose of tetdose's engine: give "
+                          "--mesh (and no --engine ompmc), or drop --vertex-dose")
     if args.engine == "ompmc":
         return _run_ompmc(args, plan, settings, mesh, density, labels, extra, progress)
     world = World(mesh=mesh, density=density, labels=labels)
@@ -281,7 +297,12 @@ def run(args: argparse.Namespace) -> int:
     result = absolute_result(result, plan, world)
     outputs: list[str] = []
     if mesh is not None:
-        write_mesh(args.output, mark(result.to_mesh(mesh), settings.dose_to))
+        out_mesh = result.to_mesh(mesh)
+        if args.vertex_dose:
+            from tetdose.dose.vertex import with_vertex_dose
+
+            out_mesh = with_vertex_dose(out_mesh, result)
+        write_mesh(args.output, mark(out_mesh, settings.dose_to))
         outputs.append(str(args.output))
         extra["mesh"] = str(args.mesh)
     if density is not None:
@@ -296,6 +317,8 @@ def run(args: argparse.Namespace) -> int:
     path = result.save_json(record_path(args.output))
     if not args.quiet:
         print(summary_line(result, world.kind, outputs, path))
+        if "target" in result.extra:
+            print(target_line([result.extra["target"]]))
     return 0
 
 
@@ -313,6 +336,21 @@ def ct_materials(rule: str, plan: Any, ct: Any, cal: Any, labels: Any  # noqa: A
     plan = replace(plan, materials={**plan.materials, **names},
                    compositions={**plan.compositions, **comps})
     return plan, labels, assignment_record(labels, names)
+def target_line(targets: list[dict[str, Any]]) -> str:
+    """What ``--target-uncertainty`` reached: the relative standard error of the mean dose in
+    the target structure per run (one run, or one per phase), with the histories it took."""
+    t0 = targets[0]
+    of = ("the median per-cell dose" if t0.get("statistic") == "median" else "the mean dose")
+    what = (f"target σ {100 * t0['uncertainty']:.3g} % of {of} in "
+            f"{t0['region'] if t0['region'] is not None else 'the prescription structure'}")
+    reached = [t for t in targets if t["reached"]]
+    got = ", ".join(f"{100 * t['achieved']:.3g} %" for t in targets)
+    hist = ", ".join(f"{t['histories']:.3g}" for t in targets)
+    if len(reached) == len(targets):
+        return f"{what}: reached ({got} after {hist} histories)"
+    missed = len(targets) - len(reached)
+    return (f"{what}: NOT reached in {missed} of {len(targets)} run(s) ({got} after {hist} "
+            "histories; the --histories cap ran out: raise it)")
 
 
 def summary_line(result: Any, world: str, outputs: list[str], path: Path) -> str:  # noqa: ANN401

@@ -14,6 +14,7 @@ from tetdose.cli._dose import (
     dask_context,
     ompmc_options,
     run_settings,
+    target_line,
 )
 from tetdose.core.io import read_ct
 from tetdose.core.phase_names import order_by_names
@@ -95,6 +96,9 @@ def run(args: argparse.Namespace) -> int:
         unit = f"Gy per {plan.particles:g} source photons"
     print(f"{series.n_phases} phases × {settings.n_histories} histories: accumulated dose max "
           f"{result.accumulated.dose_gy.max():.4g} {unit} → {args.output}")
+    targets = [r.extra["target"] for r in result.results if "target" in r.extra]
+    if targets:
+        print(target_line(targets).replace("run(s)", "phases"))
     return 0
 
 

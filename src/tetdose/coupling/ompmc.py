@@ -592,6 +592,9 @@ def _target_weights(density: Image, labels: Image | None, mesh: TetMesh | None, 
     in ``labels``. None without a target."""
     if settings.target_uncertainty is None:
         return None
+    if settings.target_statistic != "mean":
+        raise OptionError("the ompmc engine stops on the σ of the target's mean dose: drop "
+                          "--target-statistic median (tetdose's engine has it)")
     if mesh is not None:
         with contextlib.suppress(PlanError):
             cells = target_cells(mesh, plan, settings)

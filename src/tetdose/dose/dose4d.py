@@ -190,15 +190,18 @@ def run_dose4d(series: PhaseSeries, plan: Plan, settings: TransportSettings, *,
     worlds = [World(mesh=m, density=None if density is None else density[k])
               for k, m in enumerate(meshes)]
     geoms: list[World | TetMesh | Image] = [*worlds, *(density or [])]
-    if phase_plans is None:
-        streams = [replace(settings, stream=k % n) for k in range(len(geoms))]
-        results = simulate_on(client, geoms, plan, streams, batches_per_task=batches_per_task,
-                              progress=progress, desc="dose per phase (mesh, then voxels)")
-    else:
+    if phase_plans is not None:
         each = [simulate_on(client, [geoms[k], *([density[k]] if density else [])], plans[k],
                             sets[k], batches_per_task=batches_per_task, progress=False)
                 for k in range(n)]
         results = [r[0] for r in each] + [r[1] for r in each if len(r) > 1]
+    elif settings.target_uncertainty is not None and density is not None:
+        streams = [replace(settings, stream=k % n) for k in range(len(geoms))]
+        results = _to_target(client, geoms, plan, streams, n, progress)
+    else:
+        streams = [replace(settings, stream=k % n) for k in range(len(geoms))]
+        results = simulate_on(client, geoms, plan, streams, batches_per_task=batches_per_task,
+                              progress=progress, desc="dose per phase (mesh, then voxels)")
     parts = [r.mesh_part() for r in results[:n]]
     accumulated = accumulate_meshes(meshes, [r.dose_gy for r in parts],
                                     weights=series.time_weight,
@@ -209,6 +212,20 @@ def run_dose4d(series: PhaseSeries, plan: Plan, settings: TransportSettings, *,
         body = _body_way(series, accumulated, results[:n])
     # Prescription (tetdose.plan.prescription): one scale for every phase and accumulation.
     return absolute_dose4d(Dose4D(series, results[:n], accumulated, voxel, body), plan)
+
+
+def _to_target(client: Any, geoms: list[World | TetMesh | Image], plan: Plan,  # noqa: ANN401
+               streams: list[TransportSettings], n: int, progress: bool) -> list[DoseResult]:
+    """Phases run to the settings' target uncertainty (in the target structure of the phase
+    meshes); the voxel-only body of phase k (no structures) then runs the batches and
+    histories phase k's mesh run needed, so both ways of every phase have equal histories."""
+    phases = simulate_on(client, geoms[:n], plan, streams[:n], progress=progress,
+                         desc="dose per phase (mesh)")
+    voxel_settings = [replace(streams[n + k], target_uncertainty=None,
+                              n_histories=phases[k].n_histories, n_batches=phases[k].n_batches)
+                      for k in range(len(geoms) - n)]
+    return [*phases, *simulate_on(client, geoms[n:], plan, voxel_settings, progress=progress,
+                                  desc="dose per phase (voxels)")]
 
 
 def _with_engine(series: PhaseSeries, plan: Plan, plans: list[Plan],

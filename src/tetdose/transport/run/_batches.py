@@ -36,10 +36,12 @@ STACK_DEPTH = 8
 
 @njit(cache=True, parallel=True)
 def run_world(tet, vox, tri_lo, tri_n, tri_start, tri_items, xs, src, seed, stream, n_hist,
-              n_batches, b_start, b_stop, cutoff, track, energy, ledger, counts):
+              n_batches, b_start, b_stop, qmc, cutoff, track, energy, ledger, counts):
     """Run batches ``b_start … b_stop−1`` in the world of the fields of a
     :class:`~._geometry_world.WorldGeometry`; batch b fills row ``b − b_start`` of
     energy/ledger/counts (arrays of ``b_stop − b_start`` rows; sources in the world's frame).
+    ``qmc``: quasi-random points of the histories from batch ``b_start``'s first on
+    (:mod:`tetdose.transport.sources.quasi`; shape (1, 0): pseudo-random sources).
 
     The world comes in field by field and is rebuilt inside the loop body: numba's parallel
     loops cannot take a tuple that nests tuples of arrays as an argument.
@@ -56,7 +58,8 @@ def run_world(tet, vox, tri_lo, tri_n, tri_start, tri_items, xs, src, seed, stre
         tally = energy[b - b_start]
         for h in range(b * n_hist // n_batches, (b + 1) * n_hist // n_batches):
             state = seed_for(seed, stream, h)
-            state, e, x, y, z, u, v, w = sample_source(src, state)
+            q = qmc[h - b_start * n_hist // n_batches if qmc.shape[1] > 0 else 0]
+            state, e, x, y, z, u, v, w = sample_source(src, state, q)
             led[L_SOURCE] += e
             cell, x, y, z, n_reloc = start_cell(wg, x, y, z, u, v, w)
             cnt[C_RELOCATIONS] += n_reloc

@@ -36,7 +36,7 @@ STEP_CELLS = 256
 
 
 @njit(cache=True, inline="always")
-def _sample_group(wg, src_g, src_e, src_p, vol, group_cdf, state):
+def _sample_group(wg, src_g, src_e, src_p, vol, group_cdf, state, q):
     """(state, species, energy, cell, x, y, z, u, v, w, relocations) of one source particle;
     cell −1 if a beam particle misses the world."""
     state, xi = next_uniform(state)
@@ -48,13 +48,13 @@ def _sample_group(wg, src_g, src_e, src_p, vol, group_cdf, state):
         return state, sp, e, cell, x, y, z, u, v, w, 0
     if group == 0:
         sp = PHOTON
-        state, e, x, y, z, u, v, w = sample_source(src_g, state)
+        state, e, x, y, z, u, v, w = sample_source(src_g, state, q)
     elif group == 1:
         sp = ELECTRON
-        state, e, x, y, z, u, v, w = sample_source(src_e, state)
+        state, e, x, y, z, u, v, w = sample_source(src_e, state, q)
     else:
         sp = POSITRON
-        state, e, x, y, z, u, v, w = sample_source(src_p, state)
+        state, e, x, y, z, u, v, w = sample_source(src_p, state, q)
     cell, x, y, z, n_reloc = start_cell(wg, x, y, z, u, v, w)
     return state, sp, e, cell, x, y, z, u, v, w, n_reloc
 
@@ -62,7 +62,7 @@ def _sample_group(wg, src_g, src_e, src_p, vol, group_cdf, state):
 @njit(cache=True, parallel=True)
 def run_world_dose(tet, vox, tri_lo, tri_n, tri_start, tri_items, xs, ln_mu_hat, et, sig_hat,
                    src_g, src_e, src_p, vol, group_cdf, seed, stream, n_hist, n_batches, b_start,
-                   b_stop, photon_cutoff, f_loss, n_split, rr_mev, energy, ledger, counts):
+                   b_stop, qmc, photon_cutoff, f_loss, n_split, rr_mev, energy, ledger, counts):
     """Run batches ``b_start … b_stop−1`` (as :func:`~._batches.run_world`): batch b fills row
     ``b − b_start`` of energy [MeV per cell], ledger (:data:`N_LEDGER_DOSE` columns) and counts
     (:data:`N_COUNTS_DOSE`). ``ln_mu_hat`` the photons' majorant table for Woodcock tracking
@@ -70,7 +70,8 @@ def run_world_dose(tet, vox, tri_lo, tri_n, tri_start, tri_items, xs, ln_mu_hat,
     hard-event majorant,
     ``photon_cutoff`` [MeV], ``f_loss`` the largest energy-loss fraction per electron step,
     ``n_split`` the copies of each source photon (1: no splitting), ``rr_mev`` the range
-    rejection's largest electron energy [MeV] (0: off).
+    rejection's largest electron energy [MeV] (0: off), ``qmc`` the quasi-random source points
+    (as :func:`~._batches.run_world`).
     """
     for b in prange(b_start, b_stop):
         wg = WorldGeometry(tet, vox, tri_lo, tri_n, tri_start, tri_items)
@@ -82,8 +83,9 @@ def run_world_dose(tet, vox, tri_lo, tri_n, tri_start, tri_items, xs, ln_mu_hat,
         tally = energy[b - b_start]
         for h in range(b * n_hist // n_batches, (b + 1) * n_hist // n_batches):
             state = seed_for(seed, stream, h)
+            q = qmc[h - b_start * n_hist // n_batches if qmc.shape[1] > 0 else 0]
             state, sp, e, cell, x, y, z, u, v, w, n_reloc = _sample_group(
-                wg, src_g, src_e, src_p, vol, group_cdf, state)
+                wg, src_g, src_e, src_p, vol, group_cdf, state, q)
             e_ledger = e + (2.0 * ELECTRON_MASS_MEV if sp == POSITRON else 0.0)
             led[L_SOURCE] += e_ledger
             cnt[C_RELOCATIONS] += n_reloc

@@ -24,6 +24,7 @@ from tetdose.transport.physics.xs import CrossSections
 from tetdose.transport.run._dose_batches import run_world_dose
 from tetdose.transport.run.settings import TransportSettings
 from tetdose.transport.sources.arrays import E_MAX_MEV
+from tetdose.transport.sources.quasi import history_points
 
 #: Relative margin of the majorant against rounding.
 MAJORANT_MARGIN = 1e-12
@@ -82,6 +83,14 @@ def electron_tables(names: list[str], settings: TransportSettings
                    settings.max_energy_loss_fraction)
 
 
+def qmc_rows(settings: TransportSettings, b_start: int, b_stop: int) -> FloatArray:
+    """Quasi-random source points of batches ``b_start … b_stop−1`` (the kernels' ``qmc``)."""
+    first = b_start * settings.n_histories // settings.n_batches
+    last = b_stop * settings.n_histories // settings.n_batches
+    return history_points(settings.quasi_random, settings.seed, settings.stream,
+                          settings.n_histories, settings.n_batches, first, last - first)
+
+
 def run_dose_rows(job, xs: CrossSections, settings: TransportSettings,  # noqa: ANN001
                   b_start: int, b_stop: int, energy: FloatArray, ledger: FloatArray,
                   counts: np.ndarray) -> None:
@@ -93,6 +102,7 @@ def run_dose_rows(job, xs: CrossSections, settings: TransportSettings,  # noqa: 
                  if settings.photon_tracking == "woodcock" and job.n_tets > 0 else np.zeros(0))
     run_world_dose(*job.geom, xs, ln_mu_hat, et, sig_hat, job.src, ps.electron, ps.positron, ps.volume,
                    ps.group_cdf, settings.seed, settings.stream, settings.n_histories,
-                   settings.n_batches, b_start, b_stop, settings.energy_cutoff_mev,
+                   settings.n_batches, b_start, b_stop, qmc_rows(settings, b_start, b_stop),
+                   settings.energy_cutoff_mev,
                    settings.max_energy_loss_fraction, settings.photon_splitting,
                    settings.range_rejection_mev, energy, ledger, counts)

@@ -37,7 +37,7 @@ from tetdose.transport.physics.xs import (
     material_for_density,
 )
 from tetdose.transport.run._batches import run_world
-from tetdose.transport.run.coupled import run_dose_rows
+from tetdose.transport.run.coupled import qmc_rows, run_dose_rows
 from tetdose.transport.run.settings import TransportSettings
 from tetdose.transport.sources._sample import SourceArrays
 from tetdose.transport.sources.arrays import E_MAX_MEV, source_arrays
@@ -163,7 +163,8 @@ def run_batches(job: TransportJob, xs: CrossSections, settings: TransportSetting
     ledger = np.zeros((n, N_LEDGER))
     counts = np.zeros((n, N_COUNTS), dtype=np.int64)
     run_world(*job.geom, xs, job.src, settings.seed, settings.stream, settings.n_histories,
-              settings.n_batches, b_start, b_stop, settings.energy_cutoff_mev,
+              settings.n_batches, b_start, b_stop, qmc_rows(settings, b_start, b_stop),
+              settings.energy_cutoff_mev,
               settings.estimator == "track_length", energy, ledger, counts)
     return energy, ledger, counts
 
@@ -236,6 +237,24 @@ def region_uncertainty(rows: list[Rows], per_batch: IntArray, target_cells: Bool
     return float(np.sqrt(((x - mean) ** 2).sum() / (b * (b - 1))) / mean)
 
 
+def median_uncertainty(rows: list[Rows], per_batch: IntArray, target_cells: BoolArray) -> float:
+    """Median over the cells of ``target_cells`` that have energy of each cell's relative
+    standard error σ_c/x̄_c, from the batch estimates x_bc = E_bc / n_b so far (the per-cell
+    statistics of :attr:`DoseResult.relative_uncertainty`). ∞ before two batches or while no
+    cell has energy."""
+    e = np.concatenate([r[0][:, target_cells] for r in rows])
+    b = len(e)
+    if b < 2:
+        return float("inf")
+    x = e / per_batch[:b, None]
+    mean = x.mean(axis=0)
+    live = mean > 0.0
+    if not live.any():
+        return float("inf")
+    sd = np.sqrt(((x[:, live] - mean[live]) ** 2).sum(axis=0) / (b * (b - 1)))
+    return float(np.median(sd / mean[live]))
+
+
 def execute(job: TransportJob, on_grid: MeshOnGrid | None, plan: Plan,
             settings: TransportSettings, progress: bool | None,
             target_cells: BoolArray | None = None) -> DoseResult:
@@ -244,8 +263,9 @@ def execute(job: TransportJob, on_grid: MeshOnGrid | None, plan: Plan,
 
     With ``settings.target_uncertainty`` and ``target_cells`` (mask over the result's cells, mesh
     order then voxels), the run stops after the first group whose :func:`region_uncertainty`
-    reaches the target (at least :data:`MIN_TARGET_BATCHES` batches); the result then holds the
-    batches run, and its metadata says so. More batches give a finer stop."""
+    (``target_statistic`` "mean") or :func:`median_uncertainty` ("median") reaches the target
+    (at least :data:`MIN_TARGET_BATCHES` batches); the result then holds the batches run, and
+    its metadata says so. More batches give a finer stop."""
     xs = cross_sections(job, settings)
     preflight(job, xs, settings, numba.get_num_threads())
     nb = settings.n_batches
@@ -258,6 +278,7 @@ def execute(job: TransportJob, on_grid: MeshOnGrid | None, plan: Plan,
             kernel_cells[:job.n_tets] = kernel_cells[:job.n_tets][job.order]
     rows: list[Rows] = []
     reached = None
+    measure = median_uncertainty if settings.target_statistic == "median" else region_uncertainty
     t0, cpu0 = time.perf_counter(), time.process_time()
     with tqdm(total=nb, unit="batch", disable=None if progress is None else not progress,
               desc=f"{job.kind} transport", delay=PROGRESS_DELAY_S) as bar:
@@ -266,7 +287,7 @@ def execute(job: TransportJob, on_grid: MeshOnGrid | None, plan: Plan,
             rows.append(run_batches(job, xs, settings, b0, b1))
             bar.update(b1 - b0)
             if kernel_cells is not None and b1 >= MIN_TARGET_BATCHES and b1 < nb:
-                u = region_uncertainty(rows, per_batch, kernel_cells)
+                u = measure(rows, per_batch, kernel_cells)
                 bar.set_postfix_str(f"σ/D {100 * u:.2f} %")
                 if u <= settings.target_uncertainty:
                     reached = b1
@@ -276,8 +297,9 @@ def execute(job: TransportJob, on_grid: MeshOnGrid | None, plan: Plan,
         done = reached or nb
         extra["target"] = {"uncertainty": settings.target_uncertainty,
                            "region": settings.target_region, "reached": reached is not None,
+                           "statistic": settings.target_statistic,
                            "batches": done, "histories": int(per_batch[:done].sum()),
-                           "achieved": region_uncertainty(rows, per_batch, kernel_cells)}
+                           "achieved": measure(rows, per_batch, kernel_cells)}
     return assemble(job, on_grid, plan, settings, rows, time.perf_counter() - t0, extra,
                     per_batch=per_batch[:sum(len(r[0]) for r in rows)])
 
@@ -298,6 +320,8 @@ def physics_record(settings: TransportSettings) -> dict[str, object]:
                    range_rejection_mev=settings.range_rejection_mev,
                    photon_tracking=settings.photon_tracking)
     rec["dose_to"] = settings.dose_to
+    if settings.quasi_random:
+        rec["quasi_random"] = True
     return rec
 
 

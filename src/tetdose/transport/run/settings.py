@@ -17,7 +17,10 @@ energy deposition only. ``photon_tracking``: dose mode moves photons through the
 Woodcock (delta) tracking (``"woodcock"``, default: a majorant, point location, no tet walk;
 :mod:`tetdose.transport.history._delta`) or walks them tet by tet as kerma mode does
 (``"walk"``); both give the same dose within statistics (different random numbers). Kerma mode
-always walks (its track-length estimator needs every segment).
+always walks (its track-length estimator needs every segment). ``quasi_random``: the source
+particles' position (or direction), spectrum line and beam come from randomized Sobol points,
+independently scrambled per batch (:mod:`tetdose.transport.sources.quasi`); off: bit for bit
+the pseudo-random sources.
 """
 
 from __future__ import annotations
@@ -28,6 +31,9 @@ from tetdose.errors import PlanError
 
 #: The one spelling of each dose estimator (`--estimator`).
 ESTIMATORS = ("analog", "track_length")
+#: What a target uncertainty is about (`--target-statistic`): the relative σ of the structure's
+#: mean dose, or the median of its cells' relative σ.
+TARGET_STATISTICS = ("mean", "median")
 #: The one spelling of each physics model (`--physics`).
 PHYSICS = ("dose", "kerma")
 #: How dose mode moves photons through the mesh: Woodcock (delta) tracking or the tet walk.
@@ -63,6 +69,8 @@ class TransportSettings:
     target_uncertainty: float | None = None
     #: Structure of the target (a plan [regions] name or a label); None: the prescription's.
     target_region: str | int | None = None
+    #: "mean": σ of the structure's mean dose; "median": median σ/D of its cells (tets, voxels).
+    target_statistic: str = "mean"
     physics: str = "dose"
     electron_cutoff_mev: float = ELECTRON_CUTOFF_MEV
     max_energy_loss_fraction: float = MAX_ENERGY_LOSS_FRACTION
@@ -74,6 +82,8 @@ class TransportSettings:
     photon_tracking: str = "woodcock"
     #: "medium" (D_m) or "water" (D_w = D_m · s_w,m, :mod:`tetdose.transport.physics.dose_to_water`).
     dose_to: str = "medium"
+    #: Source particles from scrambled Sobol points (one independent scramble per batch).
+    quasi_random: bool = False
 
     def __post_init__(self) -> None:
         if int(self.n_batches) < 2:
@@ -96,6 +106,9 @@ class TransportSettings:
         if self.target_uncertainty is not None and not 0.0 < self.target_uncertainty < 1.0:
             raise PlanError(f"target_uncertainty is a relative standard error in (0, 1), e.g. "
                             f"0.01 for 1 %; got {self.target_uncertainty}")
+        if self.target_statistic not in TARGET_STATISTICS:
+            raise PlanError(f"target_statistic {self.target_statistic!r} is unknown; use one of "
+                            f"{TARGET_STATISTICS}")
         if self.physics == "dose" and self.estimator != "analog":
             raise PlanError("physics 'dose' scores the energy electrons deposit (the analog "
                             "estimator); the track-length estimator gives kerma: use "

@@ -18,6 +18,15 @@ isocentre, jaws and leaves linearly — a leaf pair is chosen by its open area a
 ``iso + a₁·X_b + a₂·Y_b``, with (X_b, Y_b, Z_b) = M·R_z(−couch)·R_y(gantry)·R_z(collimator)
 (IEC 61217, :func:`tetdose.plan.beams.beam_axes`; M maps the patient support system to the
 source frame).
+
+Quasi-random primaries (``TransportSettings.quasi_random``, :mod:`.quasi`): ``q`` is the
+history's point of a scrambled Sobol sequence (:data:`N_QMC_DIMS` coordinates in [0, 1)); the
+uniforms listed below are then taken from it instead of the history's stream (the stream still
+advances by the same draws, so everything after the source is drawn as without it). Coordinates:
+:data:`Q_A`, :data:`Q_B` the field position (parallel), cos θ and φ (point), the aperture point
+(linac); :data:`Q_ENERGY` the spectrum line; :data:`Q_C` the aperture rectangle (linac);
+:data:`Q_BEAM` the beam. Dynamic segments (rejection sampling) stay pseudo-random. ``q`` of
+length 0: every uniform from the stream (bit for bit the sampling without the option).
 """
 
 import math
@@ -68,14 +77,30 @@ class SourceArrays(NamedTuple):
     dyn_max_area: FloatArray  # (J,) largest open area over the segment [mm²] (rejection bound)
 
 
+#: Coordinates of a history's quasi-random point (module docstring); Sobol's first dimensions are
+#: the best distributed, so the field position comes first.
+Q_A, Q_B, Q_ENERGY, Q_C, Q_BEAM = 0, 1, 2, 3, 4
+N_QMC_DIMS = 5
+
+
 @kernel
-def sample_source(src, state):
-    """(state, energy, x, y, z, u, v, w) of one source photon."""
+def _uniform(state, q, k):
+    """(state, ξ): the stream's next uniform, replaced by coordinate k of ``q`` when it has one."""
     state, xi = next_uniform(state)
+    if k < q.shape[0]:
+        xi = q[k]
+    return state, xi
+
+
+@kernel
+def sample_source(src, state, q):
+    """(state, energy, x, y, z, u, v, w) of one source photon; ``q`` the history's quasi-random
+    point, or empty (module docstring)."""
+    state, xi = _uniform(state, q, Q_BEAM)
     b = 0
     while b < src.beam_cdf.shape[0] - 1 and src.beam_cdf[b] <= xi:
         b += 1
-    state, xi = next_uniform(state)
+    state, xi = _uniform(state, q, Q_ENERGY)
     i = src.spec_start[b]
     while i < src.spec_start[b + 1] - 1 and src.spec_cdf[i] <= xi:
         i += 1
@@ -83,16 +108,16 @@ def sample_source(src, state):
     x, y, z = src.pos[b, 0], src.pos[b, 1], src.pos[b, 2]
     u, v, w = src.axis[b, 0], src.axis[b, 1], src.axis[b, 2]
     if src.kind[b] == PARALLEL:
-        state, r1 = next_uniform(state)
-        state, r2 = next_uniform(state)
+        state, r1 = _uniform(state, q, Q_A)
+        state, r2 = _uniform(state, q, Q_B)
         a1 = (r1 - 0.5) * src.field[b, 0]
         a2 = (r2 - 0.5) * src.field[b, 1]
         x += a1 * src.e1[b, 0] + a2 * src.e2[b, 0]
         y += a1 * src.e1[b, 1] + a2 * src.e2[b, 1]
         z += a1 * src.e1[b, 2] + a2 * src.e2[b, 2]
     elif src.kind[b] == POINT:
-        state, r1 = next_uniform(state)
-        state, r2 = next_uniform(state)
+        state, r1 = _uniform(state, q, Q_A)
+        state, r2 = _uniform(state, q, Q_B)
         ct = 1.0 - r1 * (1.0 - src.cos_half[b])
         st = math.sqrt(max(1.0 - ct * ct, 0.0))
         cp, sp = math.cos(2.0 * math.pi * r2), math.sin(2.0 * math.pi * r2)
@@ -102,22 +127,22 @@ def sample_source(src, state):
         norm = math.sqrt(u * u + v * v + w * w)
         u, v, w = u / norm, v / norm, w / norm
     elif src.kind[b] == LINAC:
-        state, u, v, w = _aim_in_aperture(src, b, state)
+        state, u, v, w = _aim_in_aperture(src, b, state, q)
     elif src.kind[b] == LINAC_DYNAMIC:
         state, x, y, z, u, v, w = _dynamic_photon(src, src.dyn_row[b], src.sad[b], state)
     return state, e, x, y, z, u, v, w
 
 
 @kernel
-def _aim_in_aperture(src, b, state):
+def _aim_in_aperture(src, b, state, q):
     """(state, u, v, w): unit direction from the source of linac beam b to a point drawn
     uniformly over its aperture on the isocentre plane (rectangle by area, then uniform)."""
-    state, xi = next_uniform(state)
+    state, xi = _uniform(state, q, Q_C)
     r = src.rect_start[b]
     while r < src.rect_start[b + 1] - 1 and src.rect_cdf[r] <= xi:
         r += 1
-    state, r1 = next_uniform(state)
-    state, r2 = next_uniform(state)
+    state, r1 = _uniform(state, q, Q_A)
+    state, r2 = _uniform(state, q, Q_B)
     a1 = src.rect[r, 0] + r1 * (src.rect[r, 1] - src.rect[r, 0])
     a2 = src.rect[r, 2] + r2 * (src.rect[r, 3] - src.rect[r, 2])
     d = src.sad[b]

@@ -17,6 +17,7 @@ from tetdose.plan.model import Plan
 from tetdose.transport.run.settings import TransportSettings
 from tetdose.transport.sources._draw import draw_particles
 from tetdose.transport.sources.arrays import source_arrays
+from tetdose.transport.sources.quasi import history_points
 
 
 class SourceParticles(NamedTuple):
@@ -36,5 +37,8 @@ def source_particles(plan: Plan, settings: TransportSettings, first: int, count:
     energy = np.empty(int(count))
     position = np.empty((int(count), 3))
     direction = np.empty((int(count), 3))
-    draw_particles(src, settings.seed, settings.stream, int(first), energy, position, direction)
+    qmc = history_points(settings.quasi_random, settings.seed, settings.stream,
+                         settings.n_histories, settings.n_batches, int(first), int(count))
+    draw_particles(src, settings.seed, settings.stream, int(first), qmc, energy, position,
+                   direction)
     return SourceParticles(energy, position, direction)
