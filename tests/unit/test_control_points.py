@@ -229,6 +229,7 @@ def test_plan_toml_angle_omitted_after_a_direction_does_not_turn():
 
 
 @pytest.mark.parametrize(("beam", "message"), [
+    ({"sad_mm": 10}, "sad_mm = 10 mm is below 500 mm"),  # refused in an RT Plan too
     ({"control_points": [{"meterset_weight": 0, "gantry_direction": "CW"},
                          {"meterset_weight": 0.5, "gantry_deg": 0},
                          {"meterset_weight": 1, "gantry_deg": 0}]}, "through 720° one way"),

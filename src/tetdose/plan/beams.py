@@ -67,6 +67,9 @@ _PATIENT_TO_S = {
 ROTATIONS = ("CW", "CC", "NONE")
 #: Sense (+1: the angle grows) of a CW turn of the gantry, the collimator and the couch.
 CW_SENSE = {"gantry": 1.0, "collimator": 1.0, "couch": -1.0}
+#: Smallest source–axis distance accepted [mm] (linacs: 800–1000 mm; Co-60 units 800 mm): a
+#: smaller one is a unit slip (sad_mm = 100 meant as cm) or a typo.
+MIN_SAD_MM = 500.0
 #: Widest sweep [deg] of the gantry, collimator or couch within one beam (a C-arm linac's gantry
 #: range is ±185° about 180°, IEC 61217 extended range); beyond it a plan is refused.
 MAX_SWEEP_DEG = 370.0
@@ -283,8 +286,10 @@ class LinacBeam:
         iso = np.asarray(self.isocenter_mm, dtype=np.float64).reshape(-1)
         if iso.shape != (3,) or not np.all(np.isfinite(iso)):
             raise PlanError(f"isocenter_mm must be three numbers, got {self.isocenter_mm!r}")
-        if not self.sad_mm > 0.0:
-            raise PlanError(f"sad_mm must be positive, got {self.sad_mm}")
+        if not (math.isfinite(self.sad_mm) and self.sad_mm >= MIN_SAD_MM):
+            raise PlanError(f"beam {self.name!r}: sad_mm = {self.sad_mm:g} mm is below "
+                            f"{MIN_SAD_MM:g} mm (a linac's source–axis distance is 800–1000 mm; "
+                            "give it in mm, e.g. sad_mm = 1000)")
         if self.patient_position not in PATIENT_POSITIONS:
             raise PlanError(f"[patient] position {self.patient_position!r} is unknown; use one "
                             f"of {PATIENT_POSITIONS}")

@@ -43,10 +43,8 @@ from pydicom.dataset import Dataset
 from pydicom.errors import InvalidDicomError
 
 from tetdose.errors import PlanError
-from tetdose.plan.beams import MLC, ControlPoint, LinacBeam, same_state
+from tetdose.plan.beams import MIN_SAD_MM, MLC, ControlPoint, LinacBeam, same_state
 
-#: Smallest SourceAxisDistance accepted [mm] (linacs: 800–1000 mm; Co-60 units 800 mm).
-MIN_SAD_MM = 500.0
 #: Jaw positions of an absent jaw pair [mm] (beyond any MLC field).
 OPEN_JAW_MM = 200.0
 #: Beam limiting device types read; every other one (e.g. MLCX1/MLCX2 stacked MLCs) is refused.
