@@ -1,4 +1,4 @@
-"""A transport run stops on Ctrl-C / SIGTERM within about a kernel call (~0.25 s), not a batch.
+"""A transport run stops on Ctrl-C / SIGTERM within about a kernel call (~1 s), not a batch.
 
 Batches run in short kernel calls (:class:`tetdose.transport.run.job.Pace`): the rows are bitwise
 those of one call per batch group, whatever the cut (kerma and dose mode, hybrid world), and a
@@ -51,7 +51,7 @@ def test_batches_cut_into_short_calls_give_the_same_bits(physics):
 
 
 def test_pace_aims_at_its_call_time():
-    pace = Pace(target_s=0.25, histories=100)
+    pace = Pace(target_s=0.25, histories=100)  # 100 histories took 0.05 s: 500 take 0.25 s
     pace.update(100, 0.05)
     assert pace.histories == 500
     pace.update(500, 10.0)  # far too long: at most ÷4 at once
@@ -104,3 +104,20 @@ def test_dose_stops_mid_transport_within_seconds(water, tmp_path, sig, code):
     assert "interrupted; no partial output was kept" in rest
     assert "Traceback" not in rest
     assert not out.parent.exists()  # the folder it created is gone, with every temporary
+
+
+@pytest.mark.parametrize(("exc", "code"), [(KeyboardInterrupt, 130), ("Terminated", 143)])
+def test_a_signal_while_the_parser_imports_the_commands_exits_130_or_143(monkeypatch, capsys,
+                                                                          exc, code):
+    """Ctrl-C in the seconds `tetdose` spends importing its command modules for the parser gave
+    a traceback and no exit code 130 (the handlers were set after parsing)."""
+    import tetdose.cli as cli
+
+    error = cli.Terminated if exc == "Terminated" else exc
+
+    def interrupted():
+        raise error
+
+    monkeypatch.setattr(cli, "build_parser", interrupted)
+    assert cli.main(["dose", "--help"]) == code
+    assert capsys.readouterr().err == "tetdose: interrupted; no partial output was kept\n"

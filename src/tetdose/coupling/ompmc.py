@@ -89,11 +89,16 @@ from tetdose.coupling.iaea_phsp import ELECTRON, PHOTON, POSITRON, write_phase_s
 from tetdose.coupling.onto_mesh import result_onto_mesh, voxel_share
 from tetdose.errors import DensityError, OptionError, PlanError, TetdoseError
 from tetdose.plan.model import Plan
-from tetdose.transport import World, target_cells
+from tetdose.transport import World, resolved_target, target_cells
 from tetdose.transport.history.result import DoseResult
 from tetdose.transport.physics.materials import MATERIALS, Material
 from tetdose.transport.physics.xs import ELECTRON_MASS_MEV, mass_coefficients
-from tetdose.transport.run.job import MIN_TARGET_BATCHES, PROGRESS_DELAY_S, assign_materials
+from tetdose.transport.run.job import (
+    MIN_TARGET_BATCHES,
+    PROGRESS_DELAY_S,
+    assign_materials,
+    warn_target_missed,
+)
 from tetdose.transport.run.settings import TransportSettings
 from tetdose.transport.sources.particles import source_particles
 
@@ -548,9 +553,11 @@ def _simulate(density: Image, plan: Plan, settings: TransportSettings,
     done = reached or settings.n_batches
     if target is not None:
         record["target"] = {"uncertainty": settings.target_uncertainty,
-                            "region": settings.target_region, "reached": reached is not None,
+                            "region": resolved_target(settings, plan).target_region,
+                            "reached": reached is not None,
                             "batches": done, "histories": int(per_batch[:done].sum()),
                             "achieved": _region_error(energy[:done] @ target, per_batch[:done])}
+        warn_target_missed(record["target"])
     result = DoseResult(energy[:done], per_batch[:done], world.mass_g, ledger[:done],
                         counts[:done], plan.particles, settings.seed, "analog", "voxel",
                         time.perf_counter() - t0, __version__, density.grid, record)

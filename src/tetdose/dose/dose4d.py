@@ -20,7 +20,9 @@ outside the mesh does not move, i.e. the reference-CT body); the voxel-only refe
 accumulated onto the reference grid by direct dose mapping and by energy/mass transfer, with the
 motion taken from the mesh, so the accumulations differ only by method. With a
 ``dask.distributed`` client the batches of every phase and geometry run on the cluster
-(:mod:`tetdose.transport.run.distributed`), bitwise the same doses as in this process.
+(:mod:`tetdose.transport.run.distributed`), bitwise the same doses as in this process. A target
+uncertainty is about a structure of the mesh: each phase's hybrid run stops at it, and the
+phase's voxel-only run then takes the same histories (the same source particles).
 """
 
 from __future__ import annotations
@@ -109,7 +111,8 @@ class Dose4D:
                         "relocations": r.relocations, "wall_s": r.wall_s,
                         "transport_s": r.extra.get("task_s", r.wall_s),
                         "max_dose_gy": float(r.mesh_part().dose_gy.max()),
-                        "mesh_voxel_switches": int(r.counts_per_batch[:, 5].sum())}
+                        "mesh_voxel_switches": int(r.counts_per_batch[:, 5].sum()),
+                        **({"target": r.extra["target"]} if "target" in r.extra else {})}
                        for k, r in enumerate(self.results)],
             "accumulated_max_dose_gy": float(self.accumulated.dose_gy.max()),
             "weights": self.accumulated.weights.tolist(),
@@ -164,8 +167,11 @@ def run_dose4d(series: PhaseSeries, plan: Plan, settings: TransportSettings, *,
               for k, m in enumerate(meshes)]
     geoms: list[World | TetMesh | Image] = [*worlds, *(density or [])]
     streams = [replace(settings, stream=k % n) for k in range(len(geoms))]
-    results = simulate_on(client, geoms, plan, streams, batches_per_task=batches_per_task,
-                          progress=progress, desc="dose per phase (mesh, then voxels)")
+    if settings.target_uncertainty is None or density is None:
+        results = simulate_on(client, geoms, plan, streams, batches_per_task=batches_per_task,
+                              progress=progress, desc="dose per phase (mesh, then voxels)")
+    else:
+        results = _to_target(worlds, density, plan, streams, progress)
     parts = [r.mesh_part() for r in results[:n]]
     accumulated = accumulate_meshes(meshes, [r.dose_gy for r in parts],
                                     weights=series.time_weight,
@@ -176,6 +182,20 @@ def run_dose4d(series: PhaseSeries, plan: Plan, settings: TransportSettings, *,
         body = _body_way(series, accumulated, results[:n])
     # Prescription (tetdose.plan.prescription): one scale for every phase and accumulation.
     return absolute_dose4d(Dose4D(series, results[:n], accumulated, voxel, body), plan)
+
+
+def _to_target(worlds: list[World], density: list[Image], plan: Plan,
+               streams: list[TransportSettings], progress: bool) -> list[DoseResult]:
+    """Phases run to their target uncertainty (of a structure of the mesh) in the hybrid world;
+    each phase's voxel-only run then gets the histories its hybrid run took (the same source
+    particles: stream k), so both ways compare at the same statistics."""
+    n = len(worlds)
+    hybrid = simulate_on(None, worlds, plan, streams[:n], progress=progress,
+                         desc="dose per phase (mesh)")
+    same = [replace(st, target_uncertainty=None, target_region=None, n_histories=r.n_histories,
+                    n_batches=r.n_batches) for st, r in zip(streams[n:], hybrid, strict=True)]
+    return [*hybrid, *simulate_on(None, density, plan, same, progress=progress,
+                                  desc="dose per phase (voxels)")]
 
 
 def _with_engine(series: PhaseSeries, plan: Plan, settings: TransportSettings,
