@@ -105,6 +105,19 @@ def test_mesh_ten_times_larger_and_wholly_outside():
         check_mesh_on_grid(lung_cm, 15.0**3, low)
 
 
+def test_a_stated_unit_that_puts_the_mesh_off_the_image_is_questioned():
+    """Issue 27: a mm liver given --mesh-unit cm (10× too large, mostly off the CT) was mapped
+    against a fraction of its CT mass with only "extend the image"."""
+    liver_mm = _cube((60.0, -20.0, 0.0), 150.0)
+    with pytest.raises(GeometryMismatchError, match=r"read in cm .*outside the image, while "
+                       r"read in mm it lies inside.*--mesh-unit mm"):
+        check_mesh_on_grid(liver_mm * 10.0, 1500.0**3, GRID, unit="cm")
+    check_mesh_on_grid(liver_mm, 150.0**3, GRID, unit="mm")  # the right unit passes
+    # a cm mesh off a cropped CT stays accepted: read in mm it would be a speck
+    beyond = _cube((0.0, 0.0, 20.0), 20.0) * 10.0
+    check_mesh_on_grid(beyond, 200.0**3, GRID, unit="cm")
+
+
 def test_mesh_unit_m_reads_the_metre_mesh_as_the_mm_one(d, tmp_path):
     mm = read_mesh(d / "mapped.vtu")
     with mesh_unit_policy("m"):

@@ -214,7 +214,25 @@ def test_plan_toml_control_points_carry_forward_and_arc_shorthand():
     assert full.sources[0].turns_deg == (-360.0, 0.0, 0.0)
 
 
+def test_plan_toml_angle_omitted_after_a_direction_does_not_turn():
+    """A gantry/collimator/couch direction given at control point 0 with later control points
+    that do not name the angle: the angle is unchanged (no turn), as in DICOM."""
+    mlc = {"boundaries_mm": [-10, 0, 10], "positions_mm": [-5, -5, 5, 5]}
+    plan = Plan.from_dict({"beam": [{
+        "type": "linac", "spectrum": "6MV", "isocenter_mm": [0, 0, 0], "gantry_deg": 40,
+        "collimator_deg": 10, "couch_deg": 350, "mlc": mlc, "control_points": [
+            {"meterset_weight": 0, "gantry_direction": "CW", "collimator_direction": "CC",
+             "couch_direction": "CW"},
+            {"meterset_weight": 0.5, "mlc": [0, 0, 8, 8]},
+            {"meterset_weight": 1, "mlc": [5, 5, 9, 9], "gantry_deg": 60}]}]})
+    assert [s.turns_deg for s in plan.sources] == [(0.0, 0.0, 0.0), (20.0, 0.0, 0.0)]
+
+
 @pytest.mark.parametrize(("beam", "message"), [
+    ({"sad_mm": 10}, "sad_mm = 10 mm is below 500 mm"),  # refused in an RT Plan too
+    ({"control_points": [{"meterset_weight": 0, "gantry_direction": "CW"},
+                         {"meterset_weight": 0.5, "gantry_deg": 0},
+                         {"meterset_weight": 1, "gantry_deg": 0}]}, "through 720° one way"),
     ({"arc": {"start_deg": 0, "stop_deg": 90, "direction": "CW"}, "gantry_deg": 0}, "arc"),
     ({"arc": {"start_deg": 0, "stop_deg": 90}}, "direction"),
     ({"arc": {"start_deg": 0, "stop_deg": 90, "direction": "NONE"}}, "CW"),

@@ -311,15 +311,82 @@ def test_fraction_groups_are_chosen_by_number(tmp_path):
 
 def test_static_beam_type_ignores_rotation_directions(tmp_path):
     """A STATIC beam does not move while on: a rotation direction CW between equal angles (a
-    full turn in a DYNAMIC beam, C.8.8.14.8) is no turn."""
+    full turn in a DYNAMIC beam, C.8.8.14.8) is no turn. In a DYNAMIC beam an angle the later
+    control point omits is unchanged (no turn); stated equal with CW it is a full turn, said."""
     def cw(ds):
         ds.BeamSequence[0].ControlPointSequence[0].GantryRotationDirection = "CW"
 
+    def dynamic(ds):
+        cw(ds)
+        ds.BeamSequence[0].BeamType = "DYNAMIC"
+
+    def stated(ds):
+        dynamic(ds)
+        ds.BeamSequence[0].ControlPointSequence[1].GantryAngle = "0"
+
     (ap,) = Plan.from_rt_plan(_modified(tmp_path, cw)).sources[:1]
     assert ap.kind == "linac"
-    path = _modified(tmp_path, lambda ds: (cw(ds), _set(("BeamSequence", 0, "BeamType"),
-                                                         "DYNAMIC")(ds)), "d.dcm")
-    assert Plan.from_rt_plan(path).sources[0].turns_deg == (360.0, 0.0, 0.0)
+    assert Plan.from_rt_plan(_modified(tmp_path, dynamic, "d.dcm")).sources[0].kind == "linac"
+    with pytest.warns(UserWarning, match="'AP' turns the gantry a full 360° CW between control "
+                      "points 0 and 1"):
+        turned = Plan.from_rt_plan(_modified(tmp_path, stated, "s.dcm"))
+    assert turned.sources[0].turns_deg == (360.0, 0.0, 0.0)
+    # written back, the full turn keeps its stated angles (an omitted one would read as still)
+    with pytest.warns(UserWarning, match="full 360°"):
+        again = Plan.from_rt_plan(write_rt_plan(Plan(treatment_beams=turned.treatment_beams[:1]),
+                                                tmp_path / "again.dcm"))
+    assert again.sources[0].turns_deg == (360.0, 0.0, 0.0)
+
+
+def _sliding_window(tmp_path, name, *, gantry_in_later=None, direction="CW", n=5):
+    """A fixed-gantry (30°) sliding-window MLCX beam of ``n`` control points whose first says
+    GantryRotationDirection ``direction``; the later ones carry GantryAngle
+    ``gantry_in_later`` (None: omitted, as DICOM allows for an unchanged angle)."""
+    cps = []
+    for k in range(n):
+        lead = -30.0 + 50.0 * k / (n - 1)
+        mlc = MLC(BOUNDS, [lead - 10.0] * 3 + [lead] * 3)
+        cps.append(ControlPoint(30.0, 10.0, 5.0, (-40, 40, -30, 30), mlc, k / (n - 1)))
+    path = write_rt_plan(Plan(treatment_beams=(LinacBeam("SW", "6MV", ISO, tuple(cps),
+                                                         meterset=100),)), tmp_path / name)
+    ds = pydicom.dcmread(path)
+    seq = ds.BeamSequence[0].ControlPointSequence
+    seq[0].GantryRotationDirection = direction
+    for cp in seq[1:]:
+        assert "GantryAngle" not in cp and "IsocenterPosition" not in cp
+        if gantry_in_later is not None:
+            cp.GantryAngle = gantry_in_later
+    ds.save_as(path)
+    return path
+
+
+def test_fixed_gantry_sliding_window_with_cw_and_no_later_angles_is_a_fixed_beam(tmp_path):
+    """Issue 27: control point 0 says CW, later control points omit the gantry angle (DICOM: it
+    is unchanged); the beam's segments and every sampled photon are those of the same beam with
+    direction NONE, and the photons all start at gantry 30°."""
+    omitted = Plan.from_rt_plan(_sliding_window(tmp_path, "cw.dcm"))
+    explicit = Plan.from_rt_plan(_sliding_window(tmp_path, "none.dcm", direction="NONE"))
+    assert [s.turns_deg for s in omitted.sources] == [(0.0, 0.0, 0.0)] * 4
+    for s, t in zip(omitted.sources, explicit.sources, strict=True):
+        assert (s.kind, s.weight, s.mean_area_mm2) == (t.kind, t.weight, t.mean_area_mm2)
+    arrays = [source_arrays(p, TransportSettings(n_histories=10, n_batches=2, physics="kerma"))
+              for p in (omitted, explicit)]
+    source = np.asarray(ISO) + 1000.0 * beam_axes(30.0, 10.0, 5.0)[2]
+    for i in range(300):
+        a, b = (np.array(sample_source(s, np.uint64(seed_for(5, 0, i)))[2:]) for s in arrays)
+        np.testing.assert_array_equal(a, b)
+        np.testing.assert_allclose(a[:3], source, atol=1e-9)
+
+
+def test_contradictory_rotation_directions_are_read_and_said_or_refused(tmp_path):
+    """CW with every angle stated equal: a full turn per segment (C.8.8.14.8) — more than a
+    linac turns, refused with the fix; NONE with a changing angle: the shorter turn, said."""
+    with pytest.raises(PlanError, match="'SW'.*turn the gantry through 1440° one way.*NONE"):
+        Plan.from_rt_plan(_sliding_window(tmp_path, "cw.dcm", gantry_in_later="30"))
+    with pytest.warns(UserWarning, match="rotation direction NONE but the angle moves 30° → 40°"):
+        moved = Plan.from_rt_plan(_sliding_window(tmp_path, "none.dcm", gantry_in_later="40",
+                                                  direction="NONE", n=2))
+    assert moved.sources[0].turns_deg == (10.0, 0.0, 0.0)
 
 
 def test_rtplan_key_in_plan_toml(tmp_path):

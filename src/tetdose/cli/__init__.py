@@ -131,11 +131,22 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run ``tetdose`` with ``argv`` (default: ``sys.argv[1:]``); return the exit code."""
-    try:
-        args = build_parser().parse_args(argv)
-    except SystemExit as exc:  # --help, --version, or a usage error already printed
-        return exc.code if isinstance(exc.code, int) else 2
+    """Run ``tetdose`` with ``argv`` (default: ``sys.argv[1:]``); return the exit code.
+
+    Ctrl-C and SIGTERM give 130 and 143 from the first line on (while the command modules are
+    imported for the parser too)."""
+    with _sigterm_raises():
+        try:
+            args = build_parser().parse_args(argv)
+        except SystemExit as exc:  # --help, --version, or a usage error already printed
+            return exc.code if isinstance(exc.code, int) else 2
+        except (KeyboardInterrupt, Terminated) as exc:
+            print("tetdose: interrupted; no partial output was kept", file=sys.stderr)
+            return EXIT_SIGTERM if isinstance(exc, Terminated) else EXIT_SIGINT
+        return _run(args)
+
+
+def _run(args: argparse.Namespace) -> int:
     prefix = f"tetdose {args.command}"
     from tetdose.core.io import mesh_unit_policy, tilted_policy
     from tetdose.dicom.identity import check_inputs, frame_policy
@@ -143,7 +154,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     created = _missing_folders(getattr(args, "output", None))
     code = 2
     try:
-        with _one_line_warnings(prefix), _sigterm_raises(), \
+        with _one_line_warnings(prefix), \
                 tilted_policy(bool(getattr(args, "resample_tilted", False))), \
                 output_policy(inputs=_input_paths(args), force=bool(getattr(args, "overwrite",
                                                                             False))), \

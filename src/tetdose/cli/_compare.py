@@ -18,7 +18,7 @@ from tetdose.cli._common import (
     float_in,
     int_at_least,
 )
-from tetdose.errors import TetdoseError
+from tetdose.errors import OptionError, TetdoseError
 
 MESH_SUFFIXES = (".vtu", ".vtk", ".xdmf", ".msh")
 
@@ -188,10 +188,17 @@ def _run_export(args: argparse.Namespace) -> int:
     from tetdose.compare.comparison import read_mesh_dose, recorded_dose_unit
     from tetdose.core.io import read_image
     from tetdose.core.transfer import dose_on_grid
-    from tetdose.dicom.rt_dose import write_rt_dose
+    from tetdose.dicom.rt_dose import DOSE_UNITS, write_rt_dose
     from tetdose.dose.dose_to import recorded_dose_to, require_same
 
     check_output(args, suffixes=(".dcm",))
+    unit = recorded_dose_unit(args.dose)
+    if unit not in DOSE_UNITS:
+        raise OptionError(
+            f"{args.dose}: its record says the dose is in {unit!r}, which an RT Dose cannot "
+            f"hold (Gy, Gy per fraction: absolute; Gy per source photon/particle: relative); "
+            "re-run import-dose --unit 'Gy per fraction' (or 'Gy') if the doses are absolute, "
+            "or without --unit (relative, per source particle)")
     grid = read_image(args.like).grid
     mesh = None
     if args.dose.suffix.lower() in MESH_SUFFIXES:
@@ -201,9 +208,10 @@ def _run_export(args: argparse.Namespace) -> int:
         img = dose_on_grid(read_image(args.dose), grid, what=str(args.dose))
     dose_to = require_same(args.dose_to, recorded_dose_to(args.dose, mesh), str(args.dose))
     reference = args.like if args.like.is_dir() else None
-    unit = recorded_dose_unit(args.dose)
     write_rt_dose(img, args.output, reference_ct=reference, bits=args.bits, unit=unit,
                   dose_to=dose_to)
-    print(f"RT Dose {grid.size}, max {img.array.max():.4g} {unit}, dose to {dose_to} → "
-          f"{args.output}")
+    relative = (" (DoseUnits RELATIVE: not absolute; a [prescription] or [calibration] in the "
+                "plan gives Gy per fraction)" if DOSE_UNITS[unit] == "RELATIVE" else "")
+    print(f"RT Dose {grid.size}, max {img.array.max():.4g} {unit}{relative}, dose to {dose_to} "
+          f"→ {args.output}")
     return 0

@@ -12,6 +12,9 @@ implausible for an image grid of the patient (the CT, a dose grid, a displacemen
    inside the grid — a small structure in mm is possible, so this case names ``--mesh-unit mm``
    as the way to say so;
 4. (unit not stated) it lies wholly outside the grid while scaled by 10 or 1000 it lies inside.
+5. (unit stated) read in that unit it lies mostly (> :data:`OUTSIDE_STATED`) outside the grid,
+   while read in another unit it lies inside and covers at least :data:`SMALL_FRACTION` of the
+   grid (a mm liver given ``--mesh-unit cm`` is 10× too large and mostly off the CT).
 
 The likely unit is the scale (m: 1000, cm: 10, in that order) whose scaled mesh lies inside the
 grid. The message names it and the option ``--mesh-unit mm|cm|m`` (Python:
@@ -35,6 +38,8 @@ TOO_LARGE = 10.0
 SMALL_FRACTION = 0.01
 #: Fraction of (sampled) mesh points inside the grid for the mesh to "lie inside" it.
 INSIDE_FRACTION = 0.9
+#: Fraction of a mesh in a stated unit outside the grid above which another unit is tried.
+OUTSIDE_STATED = 0.5
 #: Points sampled for the placement tests.
 MAX_SAMPLES = 20_000
 
@@ -85,7 +90,10 @@ def check_mesh_on_grid(points_mm: FloatArray, volume_mm3: float, grid: ImageGrid
             f"{mesh_what}{stated} spans {extent:.4g} mm, {extent / grid_extent:.0f}× the "
             f"{grid_extent:.4g} mm of {grid_what}: one of them is not in mm; convert the mesh "
             "(or the image) to mm")
-    if unit is not None or guess is None:
+    if unit is not None:
+        _check_stated(pts, volume_mm3, grid, unit, mesh_what, grid_what)
+        return
+    if guess is None:
         return
     inside = _inside_fraction(pts, grid)
     grid_volume = float(np.prod(hi - lo))
@@ -97,6 +105,24 @@ def check_mesh_on_grid(points_mm: FloatArray, volume_mm3: float, grid: ImageGrid
     if inside == 0.0:
         raise GeometryMismatchError(
             f"{mesh_what} lies wholly outside {grid_what}: {looks}{fix}")
+
+
+def _check_stated(pts: FloatArray, volume_mm3: float, grid: ImageGrid, unit: str,
+                  mesh_what: str, grid_what: str) -> None:
+    """Rule 5 of the module doc: question a stated unit that puts the mesh off the image."""
+    outside = 1.0 - _inside_fraction(pts, grid)
+    if outside <= OUTSIDE_STATED:
+        return
+    lo, hi = grid.bounds_grid_frame()
+    grid_volume = float(np.prod(hi - lo))
+    for other in MESH_UNITS:
+        ratio = MESH_UNITS[other] / MESH_UNITS[unit]
+        if (other != unit and _inside_fraction(pts * ratio, grid) >= INSIDE_FRACTION
+                and volume_mm3 * ratio**3 >= SMALL_FRACTION * grid_volume):
+            raise GeometryMismatchError(
+                f"{mesh_what} read in {unit} (--mesh-unit {unit}) lies {100 * outside:.0f} % "
+                f"outside {grid_what}, while read in {other} it lies inside it: its "
+                f"coordinates look like {_name(other)}; pass --mesh-unit {other}")
 
 
 def _name(unit: str | None) -> str:

@@ -89,7 +89,7 @@ from tetdose.coupling.iaea_phsp import ELECTRON, PHOTON, POSITRON, write_phase_s
 from tetdose.coupling.onto_mesh import result_onto_mesh, voxel_share
 from tetdose.errors import DensityError, OptionError, PlanError, TetdoseError
 from tetdose.plan.model import Plan
-from tetdose.transport import World, target_cells
+from tetdose.transport import World, resolved_target, target_cells
 from tetdose.transport.history.result import DoseResult
 from tetdose.transport.physics.materials import MATERIALS, Material
 from tetdose.transport.physics.xs import ELECTRON_MASS_MEV, mass_coefficients
@@ -99,6 +99,7 @@ from tetdose.transport.run.job import (
     assign_materials,
     plan_media,
     water_factors,
+    warn_target_missed,
 )
 from tetdose.transport.run.settings import TransportSettings
 from tetdose.transport.sources.particles import source_particles
@@ -559,9 +560,11 @@ def _simulate(density: Image, plan: Plan, settings: TransportSettings,
     done = reached or settings.n_batches
     if target is not None:
         record["target"] = {"uncertainty": settings.target_uncertainty,
-                            "region": settings.target_region, "reached": reached is not None,
+                            "region": resolved_target(settings, plan).target_region,
+                            "reached": reached is not None,
                             "batches": done, "histories": int(per_batch[:done].sum()),
                             "achieved": _region_error(energy[:done] @ target, per_batch[:done])}
+        warn_target_missed(record["target"])
     factor, conversion = water_factors(plan_media(list(world.choices), plan), settings)
     if conversion:  # D_w = D_m · s_w,m of each voxel's tetdose material
         energy *= factor[world.cell_material][None, :]

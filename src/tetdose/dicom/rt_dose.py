@@ -62,7 +62,8 @@ class Plan(Protocol):
 SUMMATION_TYPES = ("PLAN",)
 #: DoseUnits (PS3.3 C.8.8.3: GY or RELATIVE) by the dose's unit: an unprescribed Monte Carlo dose
 #: is in Gy per source photon, which is not an absolute dose, so it is written as RELATIVE.
-DOSE_UNITS = {"Gy": "GY", "Gy per fraction": "GY", "Gy per source photon": "RELATIVE"}
+DOSE_UNITS = {"Gy": "GY", "Gy per fraction": "GY", "Gy per source photon": "RELATIVE",
+              "Gy per source particle": "RELATIVE"}
 
 
 def rt_plan_path(dose_path: str | Path) -> Path:
@@ -94,8 +95,9 @@ def write_rt_dose(
     stated in DoseComment and the series description (DICOM has no attribute for it).
 
     ``unit``: what the values are, a key of :data:`DOSE_UNITS`. "Gy per source photon" (an
-    unprescribed dose) is written with DoseUnits RELATIVE, and DoseComment and the series
-    description say per source photon; "Gy" and "Gy per fraction" with DoseUnits GY.
+    unprescribed dose) and "Gy per source particle" (another code's, imported) are written with
+    DoseUnits RELATIVE, and DoseComment and the series description say so; "Gy" and "Gy per
+    fraction" with DoseUnits GY.
 
     ``plan``: with linac beams, the RT Plan written beside the dose holds them
     (:mod:`tetdose.plan.rt_plan`) instead of the beamless placeholder.

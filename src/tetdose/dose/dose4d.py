@@ -20,7 +20,9 @@ outside the mesh does not move, i.e. the reference-CT body); the voxel-only refe
 accumulated onto the reference grid by direct dose mapping and by energy/mass transfer, with the
 motion taken from the mesh, so the accumulations differ only by method. With a
 ``dask.distributed`` client the batches of every phase and geometry run on the cluster
-(:mod:`tetdose.transport.run.distributed`), bitwise the same doses as in this process.
+(:mod:`tetdose.transport.run.distributed`), bitwise the same doses as in this process. A target
+uncertainty is about a structure of the mesh: each phase's hybrid run stops at it, and the
+phase's voxel-only run then takes the same histories (the same source particles).
 """
 
 from __future__ import annotations
@@ -117,7 +119,8 @@ class Dose4D:
                         "relocations": r.relocations, "wall_s": r.wall_s,
                         "transport_s": r.extra.get("task_s", r.wall_s),
                         "max_dose_gy": float(r.mesh_part().dose_gy.max()),
-                        "mesh_voxel_switches": int(r.counts_per_batch[:, 5].sum())}
+                        "mesh_voxel_switches": int(r.counts_per_batch[:, 5].sum()),
+                        **({"target": r.extra["target"]} if "target" in r.extra else {})}
                        for k, r in enumerate(self.results)],
             "accumulated_max_dose_gy": float(self.accumulated.dose_gy.max()),
             "weights": self.accumulated.weights.tolist(),
@@ -216,15 +219,15 @@ def run_dose4d(series: PhaseSeries, plan: Plan, settings: TransportSettings, *,
 
 def _to_target(client: Any, geoms: list[World | TetMesh | Image], plan: Plan,  # noqa: ANN401
                streams: list[TransportSettings], n: int, progress: bool) -> list[DoseResult]:
-    """Phases run to the settings' target uncertainty (in the target structure of the phase
-    meshes); the voxel-only body of phase k (no structures) then runs the batches and
-    histories phase k's mesh run needed, so both ways of every phase have equal histories."""
-    phases = simulate_on(client, geoms[:n], plan, streams[:n], progress=progress,
+    """Phases run to their target uncertainty (of a structure of the mesh) in the hybrid world;
+    each phase's voxel-only run (no structures) then gets the batches and histories its hybrid
+    run took (the same source particles: stream k), so both ways compare at the same
+    statistics."""
+    hybrid = simulate_on(client, geoms[:n], plan, streams[:n], progress=progress,
                          desc="dose per phase (mesh)")
-    voxel_settings = [replace(streams[n + k], target_uncertainty=None,
-                              n_histories=phases[k].n_histories, n_batches=phases[k].n_batches)
-                      for k in range(len(geoms) - n)]
-    return [*phases, *simulate_on(client, geoms[n:], plan, voxel_settings, progress=progress,
+    same = [replace(st, target_uncertainty=None, target_region=None, n_histories=r.n_histories,
+                    n_batches=r.n_batches) for st, r in zip(streams[n:], hybrid, strict=True)]
+    return [*hybrid, *simulate_on(client, geoms[n:], plan, same, progress=progress,
                                   desc="dose per phase (voxels)")]
 
 

@@ -29,8 +29,10 @@ cumulative meterset weight W_k. Between control points k and k+1 the meterset Δ
 while every parameter moves linearly in meterset: jaws, leaves and isocentre, and the gantry,
 collimator and couch angles along their rotation direction (C.8.8.14.8: a rotation from a to b
 CW/CC is the turn of at most 360° in that sense, a → a CW is a full turn; "NONE" with a ≠ b is
-read as the shorter turn). Step-and-shoot is the special case of equal apertures at k and k+1
-(and ΔW = 0 between segments); a single control point is a static field. The sampling of that
+read as the shorter turn; an angle that a later control point omits does not turn towards it).
+A beam whose gantry, collimator or couch sweeps more than :data:`MAX_SWEEP_DEG` is refused.
+Step-and-shoot is the special case of equal apertures at k and k+1 (and ΔW = 0 between
+segments); a single control point is a static field. The sampling of that
 continuous delivery is in :mod:`tetdose.plan.segments`.
 
 Rotation senses (IEC 61217 angles increase clockwise seen from the origin along the positive
@@ -65,6 +67,12 @@ _PATIENT_TO_S = {
 ROTATIONS = ("CW", "CC", "NONE")
 #: Sense (+1: the angle grows) of a CW turn of the gantry, the collimator and the couch.
 CW_SENSE = {"gantry": 1.0, "collimator": 1.0, "couch": -1.0}
+#: Smallest source–axis distance accepted [mm] (linacs: 800–1000 mm; Co-60 units 800 mm): a
+#: smaller one is a unit slip (sad_mm = 100 meant as cm) or a typo.
+MIN_SAD_MM = 500.0
+#: Widest sweep [deg] of the gantry, collimator or couch within one beam (a C-arm linac's gantry
+#: range is ±185° about 180°, IEC 61217 extended range); beyond it a plan is refused.
+MAX_SWEEP_DEG = 370.0
 #: MLC leaf travel directions: "X" (MLCX) or "Y" (MLCY) of the beam limiting device system.
 MLC_AXES = ("X", "Y")
 #: Delivery keys of a plan.toml linac beam (the machine's limits, :mod:`tetdose.plan.delivery`).
@@ -283,8 +291,10 @@ class LinacBeam:
         iso = np.asarray(self.isocenter_mm, dtype=np.float64).reshape(-1)
         if iso.shape != (3,) or not np.all(np.isfinite(iso)):
             raise PlanError(f"isocenter_mm must be three numbers, got {self.isocenter_mm!r}")
-        if not self.sad_mm > 0.0:
-            raise PlanError(f"sad_mm must be positive, got {self.sad_mm}")
+        if not (math.isfinite(self.sad_mm) and self.sad_mm >= MIN_SAD_MM):
+            raise PlanError(f"beam {self.name!r}: sad_mm = {self.sad_mm:g} mm is below "
+                            f"{MIN_SAD_MM:g} mm (a linac's source–axis distance is 800–1000 mm; "
+                            "give it in mm, e.g. sad_mm = 1000)")
         if self.patient_position not in PATIENT_POSITIONS:
             raise PlanError(f"[patient] position {self.patient_position!r} is unknown; use one "
                             f"of {PATIENT_POSITIONS}")
@@ -311,12 +321,28 @@ class LinacBeam:
             if not w[-1] > w[0]:
                 raise PlanError(f"{where} delivers no meterset: the cumulative meterset weight "
                                 "does not grow between its first and last control point")
+        self._check_turns(cps)
         mlcs = [c.mlc for c in cps]
         if any(m is None for m in mlcs) and any(m is not None for m in mlcs):
             raise PlanError(f"{where}: give every control point an MLC or none")
         if mlcs[0] is not None and not all(m.same_leaves(mlcs[0]) for m in mlcs):
             raise PlanError(f"{where}: every control point needs the same MLC leaf boundaries "
                             "and axis")
+
+    def _check_turns(self, cps: tuple[ControlPoint, ...]) -> None:
+        """Refuse a gantry, collimator or couch that sweeps more than :data:`MAX_SWEEP_DEG`."""
+        if len(cps) < 2:
+            return
+        turns = np.array([a.turns_deg(b) for a, b in zip(cps[:-1], cps[1:], strict=True)])
+        reach = np.concatenate([np.zeros((1, 3)), np.cumsum(turns, axis=0)])
+        sweep = reach.max(axis=0) - reach.min(axis=0)
+        for axis, deg in zip(("gantry", "collimator", "couch"), sweep, strict=True):
+            if deg > MAX_SWEEP_DEG + 1e-6:
+                raise PlanError(
+                    f"beam {self.name!r}: its control points turn the {axis} through {deg:g}° "
+                    f"one way, more than a linac can ({MAX_SWEEP_DEG:g}°); equal angles with "
+                    f"direction CW or CC are a full turn each (DICOM C.8.8.14.8): give direction "
+                    f"NONE where the {axis} stands still")
 
     @property
     def is_static(self) -> bool:
@@ -358,7 +384,8 @@ def linac_beam_from_dict(d: Mapping[str, Any], i: int, patient_position: str,
     The beam's ``gantry_deg``, ``collimator_deg``, ``couch_deg``, ``jaws_mm`` and ``mlc`` are
     its first machine state. ``control_points = [{meterset_weight, gantry_deg, jaws_mm, mlc,
     gantry_direction, …}, …]``: each control point changes what it names and keeps the rest
-    (as in DICOM); ``mlc`` there is the list of 2N leaf positions (the beam's ``mlc`` table
+    (as in DICOM: an angle the next control point does not name does not turn, whatever the
+    direction); ``mlc`` there is the list of 2N leaf positions (the beam's ``mlc`` table
     gives ``boundaries_mm`` and ``axis``). ``arc = {start_deg, stop_deg, direction}``: a
     rotation from start to stop (CW or CC; start = stop is a full turn) at the beam's aperture.
     """
@@ -466,8 +493,11 @@ def _control_points_from_dict(d: Mapping[str, Any], where: str) -> tuple[Control
                 raise PlanError(f"control point {k} gives mlc leaf positions but the beam has "
                                 "no mlc = {boundaries_mm = [...]} table")
             state["mlc"] = state["mlc"].moved(cp["mlc"])
+        # An angle the next control point omits is unchanged: no turn towards it.
+        still = {f"{key}_rotation": "NONE" for key in ("gantry", "collimator", "couch")
+                 if k + 1 < len(items) and f"{key}_deg" not in items[k + 1]}
         try:
-            out.append(ControlPoint(**state))
+            out.append(ControlPoint(**dict(state, **still)))
         except PlanError as exc:
             raise PlanError(f"control point {k}: {exc}") from None
     return tuple(out)

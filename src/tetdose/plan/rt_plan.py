@@ -23,6 +23,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
 from pydicom.dataset import Dataset
 from pydicom.uid import RTPlanStorage
 from pydicom.valuerep import format_number_as_ds
@@ -143,6 +144,10 @@ def _beam_item(b: LinacBeam, number: int, setup: int) -> Dataset:
     item.BeamLimitingDeviceSequence = devices
     values = [_cp_values(b, cp) for cp in cps]
     changing = {k for k in values[0] if any(v[k] != values[0][k] for v in values[1:])}
+    # A full turn between equal angles is a change: an omitted angle would read as unchanged.
+    turns = np.array([p.turns_deg(q) for p, q in zip(cps[:-1], cps[1:], strict=True)])
+    changing |= {key for key, t in zip(("GantryAngle", "BeamLimitingDeviceAngle",
+                                        "PatientSupportAngle"), turns.T, strict=True) if t.any()}
     item.ControlPointSequence = [_control_point(b, v, k, changing) for k, v in enumerate(values)]
     item.BeamDescription = (f"{canonical_name(b.spectrum) or Path(b.spectrum).name} "
                             "(tetdose spectrum)")

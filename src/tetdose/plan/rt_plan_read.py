@@ -16,7 +16,11 @@ would be a wrong total):
   rotation directions (towards the next control point, C.8.8.14.8), IsocenterPosition, jaws
   X/ASYMX and Y/ASYMY (absent: ±200 mm), leaves MLCX or MLCY with the device's
   LeafPositionBoundaries. A STATIC beam does not move while the beam is on: its rotation
-  directions are ignored.
+  directions are ignored. An angle a later control point omits is unchanged (C.8.8.14.5: an
+  attribute that changes anywhere in the beam is given at every control point), so the segment
+  towards it does not turn, whatever direction is carried forward; equal angles *stated* with
+  CW/CC are a full turn (C.8.8.14.8 example 2) and a warning says so, as it does for direction
+  NONE with a changing angle (read as the shorter turn).
 
 Refused with a one-line :class:`PlanError` naming the beam and what it has: ion and brachy
 plans, non-photon beams, wedges, compensators, blocks, boli, applicators, two MLCs (MLCX and
@@ -39,10 +43,8 @@ from pydicom.dataset import Dataset
 from pydicom.errors import InvalidDicomError
 
 from tetdose.errors import PlanError
-from tetdose.plan.beams import MLC, ControlPoint, LinacBeam, same_state
+from tetdose.plan.beams import MIN_SAD_MM, MLC, ControlPoint, LinacBeam, same_state
 
-#: Smallest SourceAxisDistance accepted [mm] (linacs: 800–1000 mm; Co-60 units 800 mm).
-MIN_SAD_MM = 500.0
 #: Jaw positions of an absent jaw pair [mm] (beyond any MLC field).
 OPEN_JAW_MM = 200.0
 #: Beam limiting device types read; every other one (e.g. MLCX1/MLCX2 stacked MLCs) is refused.
@@ -185,7 +187,32 @@ def _read_beam(beam: Dataset, setups: dict[int, str], raw_meterset: Any  # noqa:
     if beam.get("BeamType", "STATIC") == "STATIC" and _moves(out):
         warnings.warn(f"RT Plan beam {name!r} is STATIC but its control points move while the "
                       "beam is on; computed as they say (as a DYNAMIC beam)", stacklevel=4)
+    odd = _odd_turn(out)
+    if odd:
+        warnings.warn(f"RT Plan beam {name!r} {odd}", stacklevel=4)
     return out
+
+
+def _odd_turn(beam: LinacBeam) -> str:
+    """What is odd about the first rotation of ``beam`` that the plan states oddly: a full turn
+    between equal angles (C.8.8.14.8 example 2) or a change of angle with direction NONE; ""."""
+    cps = beam.control_points
+    for k, (a, b) in enumerate(zip(cps[:-1], cps[1:], strict=True)):
+        if b.meterset_weight <= a.meterset_weight:
+            continue
+        for axis, turn in zip(("gantry", "collimator", "couch"), a.turns_deg(b), strict=True):
+            start, stop = getattr(a, f"{axis}_deg"), getattr(b, f"{axis}_deg")
+            direction = getattr(a, f"{axis}_rotation")
+            if abs(turn) == 360.0:
+                return (f"turns the {axis} a full 360° {direction} between control points {k} "
+                        f"and {k + 1} (equal angles {start:g}° with direction {direction}, DICOM "
+                        f"C.8.8.14.8); if the {axis} stands still, its rotation direction must "
+                        "be NONE (or the angle omitted after control point 0)")
+            if direction == "NONE" and turn != 0.0:
+                return (f"control point {k} has {axis} rotation direction NONE but the angle "
+                        f"moves {start:g}° → {stop:g}° while the beam is on: computed as the "
+                        f"shorter turn ({turn:+g}°); give CW or CC to say otherwise")
+    return ""
 
 
 def _moves(beam: LinacBeam) -> bool:
@@ -256,13 +283,14 @@ def _control_points(beam: Dataset, name: str, leaves: tuple[str, list[float]] | 
                              "collimator_deg": 0.0, "couch_deg": 0.0}
     iso = energy = None
     points = []
+    given = [{key for key, tag in _ANGLES if cp.get(tag) not in (None, "")} for cp in seq]
     for k, cp in enumerate(seq):
         where = f"RT Plan beam {name!r} control point {k}"
         weight = cp.get("CumulativeMetersetWeight")
         if weight is None or weight == "":
             raise PlanError(f"{where} has no CumulativeMetersetWeight")
         for key, tag in _ANGLES:
-            if cp.get(tag) not in (None, ""):
+            if key in given[k]:
                 state[key] = float(cp.get(tag))
         for key, tag in _DIRECTIONS:
             if cp.get(tag) not in (None, ""):
@@ -290,8 +318,12 @@ def _control_points(beam: Dataset, name: str, leaves: tuple[str, list[float]] | 
             if leaves is not None and state["mlc"] is None:
                 raise PlanError(f"{where} (the first) gives no {leaves[0]} leaf positions")
             iso = state["isocenter_mm"]
+        # An angle the next control point omits is unchanged (C.8.8.14.5): no turn towards it,
+        # whatever rotation direction is carried forward.
+        still = {f"{key[:-4]}_rotation": "NONE" for key, _tag in _ANGLES
+                 if k + 1 < len(seq) and key not in given[k + 1]}
         try:
-            points.append(ControlPoint(**dict(state, meterset_weight=float(weight))))
+            points.append(ControlPoint(**dict(state, meterset_weight=float(weight), **still)))
         except PlanError as exc:
             raise PlanError(f"{where}: {exc}") from None
     return points, list(iso), float(energy)

@@ -138,7 +138,8 @@ def beam_sources(beam: LinacBeam) -> list[PhotonSource | DynamicSegment]:
             out.append(_static(beam, a, mu) if same_state(a, b) else _dynamic(beam, a, b, mu))
     out = [s for s in out if s is not None]
     if not out:
-        raise PlanError(f"beam {beam.name!r}: every segment is closed (jaws ∩ MLC empty)")
+        raise PlanError(f"beam {beam.name!r}: every segment is closed (jaws ∩ MLC empty); "
+                        "open the leaves (mlc positions_mm, bank 1 then bank 2) inside the jaws")
     return out
 
 

@@ -27,6 +27,8 @@ and sampling), :mod:`.history` (the history loop, tallies, :class:`DoseResult`),
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from tetdose.core.image import Image
@@ -42,7 +44,7 @@ from tetdose.transport.run.job import build_job, execute
 from tetdose.transport.run.settings import TransportSettings
 
 __all__ = ["DoseResult", "PhotonSource", "Plan", "TransportSettings", "World", "as_world",
-           "mesh_geometry", "morton_order", "run_mesh_transport", "run_voxel_transport",
+           "mesh_geometry", "morton_order", "resolved_target", "run_mesh_transport", "run_voxel_transport",
            "simulate"]
 
 
@@ -50,8 +52,18 @@ def simulate(geometry: TetMesh | Image | World, plan: Plan, settings: TransportS
              labels: Image | None = None, progress: bool | None = None) -> DoseResult:
     """Run ``plan`` in a world: dose per tetrahedron, per voxel, or both (hybrid)."""
     world = as_world(geometry, labels)
+    settings = resolved_target(settings, plan)
     job, on_grid = build_job(world, plan, settings)
     return execute(job, on_grid, plan, settings, progress, target_cells(world, plan, settings))
+
+
+def resolved_target(settings: TransportSettings, plan: Plan) -> TransportSettings:
+    """``settings`` with the structure of its target uncertainty named (``target_region``,
+    else the prescription's structure), so that the run records the region it used."""
+    if (settings.target_uncertainty is None or settings.target_region is not None
+            or plan.prescription is None):
+        return settings
+    return replace(settings, target_region=plan.prescription.structure)
 
 
 def target_cells(world: World, plan: Plan, settings: TransportSettings) -> np.ndarray | None:

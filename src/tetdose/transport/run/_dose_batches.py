@@ -1,8 +1,9 @@
 """njit(parallel) batch loop of dose mode: coupled photon–electron histories, one prange per batch.
 
-The batch layout, the per-history streams ``seed_for(seed, stream, h)`` and the private
-per-batch ledgers are those of :mod:`tetdose.transport.run._batches` (bitwise the same dose
-whatever the thread count). A source particle comes from one of four groups, chosen with the
+The batch layout, the per-history streams ``seed_for(seed, stream, h)``, the private
+per-batch ledgers and the parts ``[o_from, o_to)`` of batches run per call are those of
+:mod:`tetdose.transport.run._batches` (bitwise the same dose whatever the thread count and the
+split of batches into calls). A source particle comes from one of four groups, chosen with the
 cumulative probabilities ``group_cdf``: photon beams, electron beams, positron beams (each a
 :class:`~tetdose.transport.sources._sample.SourceArrays`) and volume sources
 (:class:`~tetdose.transport.sources._volume.VolumeArrays`, born inside the world's cells).
@@ -19,8 +20,6 @@ from tetdose.transport.history._coupled import coupled_history
 from tetdose.transport.history._electron import (
     ELECTRON,
     ELECTRON_MASS_MEV,
-    N_COUNTS_DOSE,
-    N_LEDGER_DOSE,
     PHOTON,
     POSITRON,
     STACK_COLUMNS,
@@ -62,8 +61,10 @@ def _sample_group(wg, src_g, src_e, src_p, vol, group_cdf, state, q):
 @njit(cache=True, parallel=True)
 def run_world_dose(tet, vox, tri_lo, tri_n, tri_start, tri_items, xs, ln_mu_hat, et, sig_hat,
                    src_g, src_e, src_p, vol, group_cdf, seed, stream, n_hist, n_batches, b_start,
-                   b_stop, qmc, photon_cutoff, f_loss, n_split, rr_mev, energy, ledger, counts):
-    """Run batches ``b_start … b_stop−1`` (as :func:`~._batches.run_world`): batch b fills row
+                   b_stop, o_from, o_to, qmc, photon_cutoff, f_loss, n_split, rr_mev, energy,
+                   ledger, counts):
+    """Run histories ``o_from … o_to−1`` of batches ``b_start … b_stop−1`` (as
+    :func:`~._batches.run_world`): batch b adds to row
     ``b − b_start`` of energy [MeV per cell], ledger (:data:`N_LEDGER_DOSE` columns) and counts
     (:data:`N_COUNTS_DOSE`). ``ln_mu_hat`` the photons' majorant table for Woodcock tracking
     through the mesh (empty: they walk it), ``et`` electron tables, ``sig_hat`` their
@@ -78,10 +79,11 @@ def run_world_dose(tet, vox, tri_lo, tri_n, tri_start, tri_items, xs, ln_mu_hat,
         stack = np.empty((STACK_DEPTH, STACK_COLUMNS))
         bcell = np.empty(STEP_CELLS, dtype=np.intp)
         bcol = np.empty(STEP_CELLS)
-        led = np.zeros(N_LEDGER_DOSE)
-        cnt = np.zeros(N_COUNTS_DOSE, dtype=np.int64)
+        led = ledger[b - b_start].copy()
+        cnt = counts[b - b_start].copy()
         tally = energy[b - b_start]
-        for h in range(b * n_hist // n_batches, (b + 1) * n_hist // n_batches):
+        first, end = b * n_hist // n_batches, (b + 1) * n_hist // n_batches
+        for h in range(min(first + o_from, end), min(first + o_to, end)):
             state = seed_for(seed, stream, h)
             q = qmc[h - b_start * n_hist // n_batches if qmc.shape[1] > 0 else 0]
             state, sp, e, cell, x, y, z, u, v, w, n_reloc = _sample_group(

@@ -14,6 +14,7 @@ fictitious, never biased.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from functools import lru_cache
 
 import numpy as np
@@ -91,18 +92,23 @@ def qmc_rows(settings: TransportSettings, b_start: int, b_stop: int) -> FloatArr
                           settings.n_histories, settings.n_batches, first, last - first)
 
 
-def run_dose_rows(job, xs: CrossSections, settings: TransportSettings,  # noqa: ANN001
-                  b_start: int, b_stop: int, energy: FloatArray, ledger: FloatArray,
-                  counts: np.ndarray) -> None:
-    """Fill the rows of batches ``b_start … b_stop−1`` of a dose-mode
-    :class:`~tetdose.transport.run.job.TransportJob` (arrays of ``b_stop − b_start`` rows)."""
+def dose_rows_call(job, xs: CrossSections, settings: TransportSettings,  # noqa: ANN001
+                   b_start: int, b_stop: int, energy: FloatArray, ledger: FloatArray,
+                   counts: np.ndarray) -> Callable[[int, int], None]:
+    """``call(o_from, o_to)``: add histories ``o_from … o_to−1`` of each of the batches
+    ``b_start … b_stop−1`` of a dose-mode :class:`~tetdose.transport.run.job.TransportJob` to
+    their rows (arrays of ``b_stop − b_start`` rows)."""
     et, sig_hat = electron_tables(job.names, settings)
     ps = job.particles
     ln_mu_hat = (photon_majorant(xs, job.geom.tet.rho_max)
                  if settings.photon_tracking == "woodcock" and job.n_tets > 0 else np.zeros(0))
-    run_world_dose(*job.geom, xs, ln_mu_hat, et, sig_hat, job.src, ps.electron, ps.positron, ps.volume,
-                   ps.group_cdf, settings.seed, settings.stream, settings.n_histories,
-                   settings.n_batches, b_start, b_stop, qmc_rows(settings, b_start, b_stop),
-                   settings.energy_cutoff_mev,
-                   settings.max_energy_loss_fraction, settings.photon_splitting,
-                   settings.range_rejection_mev, energy, ledger, counts)
+    qmc = qmc_rows(settings, b_start, b_stop)
+
+    def call(o_from: int, o_to: int) -> None:
+        run_world_dose(*job.geom, xs, ln_mu_hat, et, sig_hat, job.src, ps.electron, ps.positron,
+                       ps.volume, ps.group_cdf, settings.seed, settings.stream,
+                       settings.n_histories, settings.n_batches, b_start, b_stop, o_from, o_to,
+                       qmc, settings.energy_cutoff_mev, settings.max_energy_loss_fraction,
+                       settings.photon_splitting, settings.range_rejection_mev, energy, ledger,
+                       counts)
+    return call

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import time
 import warnings
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from typing import NamedTuple
 
 import numba
@@ -37,7 +37,7 @@ from tetdose.transport.physics.xs import (
     material_for_density,
 )
 from tetdose.transport.run._batches import run_world
-from tetdose.transport.run.coupled import qmc_rows, run_dose_rows
+from tetdose.transport.run.coupled import dose_rows_call, qmc_rows
 from tetdose.transport.run.settings import TransportSettings
 from tetdose.transport.sources._sample import SourceArrays
 from tetdose.transport.sources.arrays import E_MAX_MEV, source_arrays
@@ -51,6 +51,14 @@ from tetdose.transport.sources.volume import volume_arrays
 
 #: Batches per kernel call and thread (groups keep the progress bar moving).
 BATCH_GROUP_PER_THREAD = 2
+#: Wall time [s] a kernel call aims at (:class:`Pace`): Python gets control between calls, so
+#: Ctrl-C and SIGTERM stop a run within about this (a numba kernel cannot be interrupted). The
+#: price: the threads wait for the slowest at the end of every call (estimated 1–3 % when a
+#: call holds only ~10³ coupled histories per thread); the split itself costs no measurable CPU
+#: (one thread, CPU time of the split run / the whole run: 0.95–1.02).
+CALL_S = 1.0
+#: Histories per batch of a run's first kernel call; later calls adapt (×1/4 … ×8 per call).
+FIRST_CALL_HISTORIES = 32
 #: The progress bar appears only for runs longer than this [s].
 PROGRESS_DELAY_S = 2.0
 #: Histories of the pilot run that checks the beams reach the world and times a history.
@@ -150,22 +158,54 @@ def cross_sections(job: TransportJob, settings: TransportSettings) -> CrossSecti
                                 e_max_mev=E_MAX_MEV)
 
 
+@dataclass
+class Pace:
+    """How many histories of each batch the next kernel call runs: adapted after every call so
+    that a call lasts about ``target_s`` (the rate of the last call, at most ×8 or ÷4 at once).
+    Where the batches are cut does not change a bit of the result (:mod:`._batches`)."""
+
+    target_s: float = CALL_S
+    histories: int = FIRST_CALL_HISTORIES
+
+    def update(self, histories: int, seconds: float) -> None:
+        factor = 8.0 if seconds <= 0.0 else min(8.0, max(0.25, self.target_s / seconds))
+        self.histories = max(1, int(histories * factor))
+
+
 def run_batches(job: TransportJob, xs: CrossSections, settings: TransportSettings,
-                b_start: int, b_stop: int) -> Rows:
-    """Rows ``b_start … b_stop−1`` of (energy [MeV], ledger [MeV], counters), kernel cell order."""
+                b_start: int, b_stop: int, pace: Pace | None = None) -> Rows:
+    """Rows ``b_start … b_stop−1`` of (energy [MeV], ledger [MeV], counters), kernel cell order.
+
+    ``pace``: run them in kernel calls of about ``pace.target_s`` each (so that a signal stops
+    the run within about that time; bitwise the same rows); None: in one call."""
     n = b_stop - b_start
     energy = np.zeros((n, len(job.mass_g)))
     if job.particles is not None:  # dose mode
         ledger = np.zeros((n, N_LEDGER_DOSE))
         counts = np.zeros((n, N_COUNTS_DOSE), dtype=np.int64)
-        run_dose_rows(job, xs, settings, b_start, b_stop, energy, ledger, counts)
+        call = dose_rows_call(job, xs, settings, b_start, b_stop, energy, ledger, counts)
+    else:
+        ledger = np.zeros((n, N_LEDGER))
+        counts = np.zeros((n, N_COUNTS), dtype=np.int64)
+
+        qmc = qmc_rows(settings, b_start, b_stop)
+
+        def call(o_from: int, o_to: int) -> None:
+            run_world(*job.geom, xs, job.src, settings.seed, settings.stream,
+                      settings.n_histories, settings.n_batches, b_start, b_stop, o_from, o_to,
+                      qmc, settings.energy_cutoff_mev, settings.estimator == "track_length", energy,
+                      ledger, counts)
+    most = -(-settings.n_histories // settings.n_batches)  # histories of the largest batch
+    if pace is None:
+        call(0, most)
         return energy, ledger, counts
-    ledger = np.zeros((n, N_LEDGER))
-    counts = np.zeros((n, N_COUNTS), dtype=np.int64)
-    run_world(*job.geom, xs, job.src, settings.seed, settings.stream, settings.n_histories,
-              settings.n_batches, b_start, b_stop, qmc_rows(settings, b_start, b_stop),
-              settings.energy_cutoff_mev,
-              settings.estimator == "track_length", energy, ledger, counts)
+    done = 0
+    while done < most:
+        m = min(pace.histories, most - done)
+        t0 = time.perf_counter()
+        call(done, done + m)
+        pace.update(m, time.perf_counter() - t0)
+        done += m
     return energy, ledger, counts
 
 
@@ -279,12 +319,13 @@ def execute(job: TransportJob, on_grid: MeshOnGrid | None, plan: Plan,
     rows: list[Rows] = []
     reached = None
     measure = median_uncertainty if settings.target_statistic == "median" else region_uncertainty
+    pace = Pace()
     t0, cpu0 = time.perf_counter(), time.process_time()
     with tqdm(total=nb, unit="batch", disable=None if progress is None else not progress,
               desc=f"{job.kind} transport", delay=PROGRESS_DELAY_S) as bar:
         for b0 in range(0, nb, group):
             b1 = min(nb, b0 + group)
-            rows.append(run_batches(job, xs, settings, b0, b1))
+            rows.append(run_batches(job, xs, settings, b0, b1, pace))
             bar.update(b1 - b0)
             if kernel_cells is not None and b1 >= MIN_TARGET_BATCHES and b1 < nb:
                 u = measure(rows, per_batch, kernel_cells)
@@ -300,6 +341,7 @@ def execute(job: TransportJob, on_grid: MeshOnGrid | None, plan: Plan,
                            "statistic": settings.target_statistic,
                            "batches": done, "histories": int(per_batch[:done].sum()),
                            "achieved": measure(rows, per_batch, kernel_cells)}
+        warn_target_missed(extra["target"], stacklevel=3)
     return assemble(job, on_grid, plan, settings, rows, time.perf_counter() - t0, extra,
                     per_batch=per_batch[:sum(len(r[0]) for r in rows)])
 
@@ -307,6 +349,18 @@ def execute(job: TransportJob, on_grid: MeshOnGrid | None, plan: Plan,
 def _mix(plan: Plan) -> dict[str, object]:
     mix = source_mix(plan)
     return {} if mix is None else {"source_mix": mix}
+
+
+def warn_target_missed(target: dict[str, object], stacklevel: int = 2) -> None:
+    """Warn (the terminal shows it) when a run's target uncertainty (its record ``target``)
+    was not reached within its histories."""
+    if target["reached"]:
+        return
+    of = "median per-cell dose" if target.get("statistic") == "median" else "mean dose"
+    warnings.warn(f"the target uncertainty {100 * float(target['uncertainty']):.3g} % of the "
+                  f"{of} in {target['region']!r} was not reached: "
+                  f"{100 * float(target['achieved']):.3g} % after all {target['histories']} "
+                  "histories (the cap); give more --histories", stacklevel=stacklevel + 1)
 
 
 def physics_record(settings: TransportSettings) -> dict[str, object]:
