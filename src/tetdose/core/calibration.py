@@ -30,6 +30,8 @@ import numpy as np
 from tetdose._typing import FloatArray
 from tetdose.errors import CalibrationError
 
+#: Densest material [g/cm³] (osmium 22.59) rounded up: larger densities are in other units.
+MAX_DENSITY_G_CM3 = 23.0
 #: Schneider 2000 nodes (HU, g/cm³), as tabulated by GATE.
 SCHNEIDER_2000 = (
     (-1000.0, 0.00121),
@@ -93,6 +95,10 @@ class HUCalibration:
             )
         if np.any(rho < 0):
             raise CalibrationError("calibration densities must be non-negative")
+        if rho.max() > MAX_DENSITY_G_CM3:
+            raise CalibrationError(
+                f"calibration densities reach {rho.max():g}, denser than any material (osmium "
+                f"22.6 g/cm³): kg/m³ or HU in the density column? give g/cm³ (water 1.0)")
         object.__setattr__(self, "hu", hu)
         object.__setattr__(self, "density_g_cm3", rho)
         object.__setattr__(self, "_inverse", _inverse_pieces(hu, rho))
