@@ -468,5 +468,5 @@ def test_cli_deform_dvfs_pair_with_phases_by_their_names(tmp_path):
     series = PhaseSeries.read(None, out)
     np.testing.assert_array_equal(series.phase_percent, [0.0, 50.0, 75.0])
     for k, s in enumerate(shift.values()):
-        np.testing.assert_allclose(series.points_mm[k] - mesh.points_mm, [[s, 0.0, 0.0]],
-                                   atol=1e-9)
+        np.testing.assert_allclose(series.points_mm[k] - mesh.points_mm,
+                                   np.tile([s, 0.0, 0.0], (mesh.n_points, 1)), atol=1e-9)
