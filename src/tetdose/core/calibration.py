@@ -95,10 +95,6 @@ class HUCalibration:
             )
         if np.any(rho < 0):
             raise CalibrationError("calibration densities must be non-negative")
-        if rho.max() > MAX_DENSITY_G_CM3:
-            raise CalibrationError(
-                f"calibration densities reach {rho.max():g}, denser than any material (osmium "
-                f"22.6 g/cm³): kg/m³ or HU in the density column? give g/cm³ (water 1.0)")
         object.__setattr__(self, "hu", hu)
         object.__setattr__(self, "density_g_cm3", rho)
         object.__setattr__(self, "_inverse", _inverse_pieces(hu, rho))
@@ -138,6 +134,10 @@ class HUCalibration:
         if not rows:
             raise CalibrationError(f"{path} holds no (HU, density) rows")
         arr = np.array(rows)
+        if arr[:, 1].max() > MAX_DENSITY_G_CM3:
+            raise CalibrationError(
+                f"{path}: densities reach {arr[:, 1].max():g}, denser than any material (osmium "
+                "22.6 g/cm³): kg/m³ or HU in the density column? give g/cm³ (water 1.0)")
         return cls(arr[:, 0], arr[:, 1], name=os.fspath(path))
 
     def density(self, hu: np.ndarray | float) -> np.ndarray:
