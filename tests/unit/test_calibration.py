@@ -115,3 +115,9 @@ def test_cli_dose_records_and_prints_hu_beyond_the_table(tmp_path, capsys, monke
     assert "tetdose dose: warning: the CT" in err and "1 voxels lie above the calibration" in err
     record = json.loads((tmp_path / "dose.json").read_text())["hu_beyond_calibration"]
     assert (record["n_above"], record["n_below"], record["highest_hu"]) == (1, 152, 20000.0)
+
+
+def test_a_table_in_kg_per_m3_is_refused(tmp_path):
+    (tmp_path / "cal.csv").write_text("HU,density\n-1000,1.2\n0,1030\n")
+    with pytest.raises(CalibrationError, match="densities reach 1030, denser than any material"):
+        HUCalibration.from_csv(tmp_path / "cal.csv")

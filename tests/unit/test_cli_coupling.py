@@ -88,6 +88,19 @@ def test_export_tetgen_and_abaqus_write_every_phase(d, tmp_path, capsys):
     got = meshio.read(tmp_path / "imp_tg" / "accumulated.vtu").cell_data["dose"][0]
     np.testing.assert_allclose(got, want, rtol=1e-9)
     assert not np.allclose(got, (dose[0] * mass[0] + dose[1] * mass[1]) / (mass[0] + mass[1]))
+    # the export's phases are matched to the series by percent, not by their order in the record
+    from tetdose.coupling.export import exported_densities
+    from tetdose.errors import MeshError
+
+    before = exported_densities(tmp_path / "tg", ref.reference.n_tets, ref.phase_percent)
+    rec_path = tmp_path / "tg" / "export.json"
+    rec = json.loads(rec_path.read_text())
+    rec["phases"].reverse()
+    rec_path.write_text(json.dumps(rec))
+    after = exported_densities(tmp_path / "tg", ref.reference.n_tets, ref.phase_percent)
+    assert all(np.array_equal(a, b) for a, b in zip(before, after, strict=True))
+    with pytest.raises(MeshError, match=r"exports phases at \[50.0, 0.0\] %, the phases are at"):
+        exported_densities(tmp_path / "tg", ref.reference.n_tets, [0.0, 25.0])
 
 
 def test_import_tallies_accumulates_and_compare_reads_it(d, tmp_path, capsys):

@@ -448,3 +448,25 @@ def test_virtual_4dct_warps_the_outside_with_the_dvf():
     # the mesh moved with the DVF: its voxels are the reference phase's, two voxels further on
     np.testing.assert_array_equal(moved.array[10:14, 10:14, 12:16], still.array[10:14, 10:14,
                                                                                  10:14])
+
+
+def test_cli_deform_dvfs_pair_with_phases_by_their_names(tmp_path):
+    """Issue 27 probe: `deform --dvf phase_050.0.nrrd phase_000.0.nrrd` took argument order for
+    phase order (and 0 %, 50 % for the two); the names say the phases."""
+    from tetdose.cli import main
+    from tetdose.core.io import write_mesh
+
+    mesh = box_mesh(origin_mm=(10.0, 10.0, 10.0))
+    write_mesh(tmp_path / "mapped.vtu", mesh)
+    grid = ImageGrid([0.0, 0.0, 0.0], [4.0, 4.0, 4.0], np.eye(3), (14, 13, 11))
+    shift = {0.0: 0.0, 50.0: 2.0, 75.0: 3.0}  # mm along x, per phase percent
+    files = {p: write_dvf(tmp_path / f"phase_{p:05.1f}.nrrd", DisplacementField(
+        np.broadcast_to([s, 0.0, 0.0], (*grid.shape, 3)).copy(), grid)) for p, s in shift.items()}
+    out = tmp_path / "phases"
+    assert main(["deform", "-q", "--mesh", str(tmp_path / "mapped.vtu"), "--dvf",
+                 str(files[75.0]), str(files[0.0]), str(files[50.0]), "-o", str(out)]) == 0
+    series = PhaseSeries.read(None, out)
+    np.testing.assert_array_equal(series.phase_percent, [0.0, 50.0, 75.0])
+    for k, s in enumerate(shift.values()):
+        np.testing.assert_allclose(series.points_mm[k] - mesh.points_mm,
+                                   np.tile([s, 0.0, 0.0], (mesh.n_points, 1)), atol=1e-9)

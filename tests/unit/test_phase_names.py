@@ -42,5 +42,7 @@ def test_percents_from_names_of_files_that_define_the_phases():
     assert [f.name for f in files] == ["phase_000.0.nrrd", "phase_050.0.nrrd"] and pct == [0, 50]
     files, pct = percents_from_names(paths("f1.nrrd", "f0.nrrd"), "--dvf")
     assert [f.name for f in files] == ["f0.nrrd", "f1.nrrd"] and pct is None  # indices
+    files, pct = percents_from_names(paths("CT_3.nrrd", "CT_1.nrrd", "CT_2.nrrd"), "4D-CT")
+    assert [f.name for f in files] == ["CT_1.nrrd", "CT_2.nrrd", "CT_3.nrrd"] and pct is None
     with pytest.raises(OptionError, match="names phase 120"):
         percents_from_names(paths("phase_120.nrrd", "phase_000.nrrd", "phase_3.nrrd"), "--dvf")

@@ -10,7 +10,7 @@ from pathlib import Path
 
 from tetdose._atomic import check_not_input, check_output_dir, check_output_file
 from tetdose._checks import check_density
-from tetdose.core.calibration import HUCalibration
+from tetdose.core.calibration import MAX_DENSITY_G_CM3, HUCalibration
 from tetdose.core.io import read_mesh
 from tetdose.core.mesh import TetMesh
 from tetdose.errors import MeshError, OutputError
@@ -134,10 +134,6 @@ def float_in(low: float, high: float = math.inf, *, low_open: bool = False,
 
     parse.__name__ = f"number {span}"
     return parse
-
-
-#: Densest material [g/cm³] (osmium 22.59) rounded up: a larger "density" is a CT number.
-MAX_DENSITY_G_CM3 = 23.0
 
 
 def density_or_word(words: Sequence[str]) -> Callable[[str], str | float]:

@@ -68,7 +68,7 @@ def _density_image(path: Path) -> Image:
     """A --density image, refused when its values are not densities [g/cm³] (negative, or
     beyond any material: a CT in HU given where densities are asked)."""
     from tetdose._checks import check_density
-    from tetdose.cli._common import MAX_DENSITY_G_CM3
+    from tetdose.core.calibration import MAX_DENSITY_G_CM3
 
     image = read_image(path)
     rho = check_density(image.array, what=f"voxels of --density {path}",
@@ -94,7 +94,7 @@ def run(args: argparse.Namespace) -> int:
         cal = calibration_from(args)
         densities = [Image(cal.density_checked(ct.array)[0].astype(np.float64), ct.grid)
                      for ct in map(read_ct, order_by_names(args.ct, pct, "--ct"))]
-    binned = (exported_densities(args.exported, series.reference.n_tets)
+    binned = (exported_densities(args.exported, series.reference.n_tets, series.phase_percent)
               if args.exported else None)
     result = import_doses(series, files, densities=densities, binned_densities=binned,
                           unit=args.unit, dose_to=args.dose_to)

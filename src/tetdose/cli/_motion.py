@@ -123,9 +123,12 @@ def _motion_series(args: argparse.Namespace, reference: TetMesh, out_dir: Path) 
         dvfs, pct = percents_from_names(dvfs, "--dvf")
     elif pct is None and phases:
         phases, pct = percents_from_names(phases, "--phases")
+    surfaces = args.surfaces
+    if pct is None and surfaces:
+        surfaces, pct = percents_from_names(surfaces, "--surfaces")
     breathing = (BreathingModel(args.amplitude_mm, args.period_s, args.shape_n)
                  if args.breathing else None)
-    return phase_series(reference, phases=phases, dvfs=dvfs, surfaces=args.surfaces,
+    return phase_series(reference, phases=phases, dvfs=dvfs, surfaces=surfaces,
                         breathing=breathing, n_phases=args.n_phases, phase_percent=pct,
                         fem=FemOptions(args.increments, args.young_kpa, args.poisson),
                         lung_regions=args.lung_regions)

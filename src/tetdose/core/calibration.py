@@ -30,6 +30,8 @@ import numpy as np
 from tetdose._typing import FloatArray
 from tetdose.errors import CalibrationError
 
+#: Densest material [g/cm³] (osmium 22.59) rounded up: larger densities are in other units.
+MAX_DENSITY_G_CM3 = 23.0
 #: Schneider 2000 nodes (HU, g/cm³), as tabulated by GATE.
 SCHNEIDER_2000 = (
     (-1000.0, 0.00121),
@@ -132,6 +134,10 @@ class HUCalibration:
         if not rows:
             raise CalibrationError(f"{path} holds no (HU, density) rows")
         arr = np.array(rows)
+        if arr[:, 1].max() > MAX_DENSITY_G_CM3:
+            raise CalibrationError(
+                f"{path}: densities reach {arr[:, 1].max():g}, denser than any material (osmium "
+                "22.6 g/cm³): kg/m³ or HU in the density column? give g/cm³ (water 1.0)")
         return cls(arr[:, 0], arr[:, 1], name=os.fspath(path))
 
     def density(self, hu: np.ndarray | float) -> np.ndarray:

@@ -4,10 +4,10 @@ A list of per-phase files (doses, densities, CTs, displacement fields, phase mes
 carry the phase — ``20%``, ``phase_020.0``, ``ph2``, or one number where the names otherwise
 agree (``dose_0.csv``, ``dose_1.csv``) — is paired with the phases by that number, whatever the
 order the shell expanded them in. The numbers are read as phase percentages when they are the
-phases' percentages (within :data:`PERCENT_TOL`), else as phase indices 0…K−1. A list where only
-some names carry a number, two names carry the same one, or the numbers are neither the
-percentages nor the indices is refused naming the file; names without numbers keep the given
-order.
+phases' percentages (within :data:`PERCENT_TOL`), else as phase indices 0…K−1 (or 1…K). A list
+where only some names carry a number, two names carry the same one, or the numbers are neither
+the percentages nor the indices is refused naming the file; names without numbers keep the
+given order.
 """
 
 from __future__ import annotations
@@ -86,6 +86,8 @@ def order_by_names(paths: Sequence[Path], percents: Sequence[float], what: str) 
         slot = match.argmax(axis=1)
     elif set(numbers) == set(range(len(paths))):
         slot = got.astype(int)
+    elif set(numbers) == set(range(1, len(paths) + 1)):  # indices counted from 1
+        slot = got.astype(int) - 1
     else:
         stray = next((paths[i].name for i in range(len(paths)) if match[i].sum() != 1), paths[0].name)
         raise OptionError(
@@ -108,7 +110,7 @@ def percents_from_names(paths: Sequence[Path], what: str) -> tuple[list[Path], l
         return paths, None
     _check_numbers(paths, numbers, what)
     k = len(paths)
-    if set(numbers) == set(range(k)):
+    if set(numbers) in (set(range(k)), set(range(1, k + 1))):  # indices from 0 or from 1
         return order_by_names(paths, [100.0 * i / k for i in range(k)], what), None
     if any(n is not None and not 0 <= n < 100 for n in numbers):
         bad = next(p for p, n in zip(paths, numbers, strict=True) if n is not None and n >= 100)

@@ -112,16 +112,29 @@ def export_phases(series: PhaseSeries, out_dir: str | os.PathLike[str], *, fmt: 
     return record
 
 
-def exported_densities(folder: str | os.PathLike[str], n_tets: int) -> list[FloatArray]:
-    """Per phase, the per-tet density [g/cm³] the exported files give (read back from them)."""
+def exported_densities(folder: str | os.PathLike[str], n_tets: int,
+                       phase_percent: FloatArray | None = None) -> list[FloatArray]:
+    """Per phase, the per-tet density [g/cm³] the exported files give (read back from them);
+    given ``phase_percent`` [%], in the order of those phases, matched by the export's record
+    (an export of other phases is refused)."""
     folder = Path(folder)
     try:
         record = json.loads((folder / RECORD).read_text(encoding="utf-8"))
     except (OSError, ValueError) as exc:
         raise MeshError(f"{folder / RECORD} cannot be read ({exc}); give the folder written by "
                         "`tetdose export-phases`") from None
+    phases = record["phases"]
+    if phase_percent is not None:
+        got = [float(p.get("phase_percent", np.nan)) for p in phases]
+        want = [float(p) for p in phase_percent]
+        pick = [int(np.argmin(np.abs(np.asarray(got) - w))) if got else -1 for w in want]
+        if len(got) != len(want) or any(abs(got[i] - w) > 0.05 for i, w in zip(pick, want,
+                                                                                strict=True)):
+            raise MeshError(f"{folder} exports phases at {got} %, the phases are at {want} %; "
+                            "give the export of these phases (`tetdose export-phases`)")
+        phases = [phases[i] for i in pick]
     out = []
-    for phase in record["phases"]:
+    for phase in phases:
         first = folder / phase["files"][0]
         if record["format"] == "tetgen":
             _, tets, mat = read_tetgen(first)
