@@ -11,7 +11,8 @@ import json
 import numpy as np
 import pytest
 
-from tetdose.compare.comparison import compare_doses, std_image_path
+from tetdose.compare.comparison import compare_doses
+from tetdose.compare.consistency import std_image_path
 from tetdose.core.body import near_max_gy
 from tetdose.core.image import Image
 from tetdose.core.io import write_image, write_mesh

@@ -94,12 +94,11 @@ def _find(path: Path, stem: str, suffixes: tuple[str, ...], what: str) -> Path:
 def _run_compare(args: argparse.Namespace) -> int:
     from tetdose.compare.comparison import (
         compare_doses,
-        mesh_dose_std,
-        read_dose_std_image,
         read_mesh_dose,
         read_structure_masks,
         recorded_dose_unit,
     )
+    from tetdose.compare.consistency import mesh_dose_std, read_dose_std_image
     from tetdose.core.io import read_ct, read_image
     from tetdose.meshing.labels import body_mask
 
