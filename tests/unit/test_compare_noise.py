@@ -111,3 +111,29 @@ def test_near_max_is_taken_in_tissue_not_in_one_air_voxel():
     assert near_max_gy(dose, 0.05) == 2.1  # without densities: every cell counts
     assert near_max_gy(dose, 1.0, rho) == 2.1  # a cell larger than 0.1 cm³: its own dose
     assert np.isnan(near_max_gy(dose, 0.05, np.zeros(5)))
+
+
+def test_run_record_reports_the_near_max_in_tissue_not_the_air_voxel():
+    """A voxel run whose hottest cell is an air voxel (few interactions in little mass): the
+    record's near-maximum is the tissue's; a mesh run's needs its tet volumes."""
+    from tetdose.core.image import ImageGrid
+    from tetdose.transport.history.result import COUNT_KEYS, DoseResult
+
+    grid = ImageGrid(np.zeros(3), np.full(3, 5.0), np.eye(3), (4, 1, 1))  # 0.125 cm³ voxels
+    mass = np.array([1e-4, 0.125, 0.125, 0.125])  # air, then water [g]
+    dose_per_mass = np.array([40.0, 2.0, 3.0, 1.0])
+    energy = np.tile(dose_per_mass * mass, (2, 1))  # same in both batches
+
+    def result(geometry, g):
+        return DoseResult(energy, np.array([5, 5]), mass, np.zeros((2, 5)),
+                          np.zeros((2, len(COUNT_KEYS)), np.int64), 1.0, 0, "track_length",
+                          geometry, 0.1, "0", grid=g, n_tets=4 if geometry == "mesh" else 0)
+
+    vox = result("voxel", grid)
+    ratio = vox.dose_gy[0] / vox.dose_gy[2]  # the air voxel is the maximum, 40/3 of the tissue's
+    assert ratio == pytest.approx(40.0 / 3.0)
+    rec = vox.record()
+    assert rec["near_max_dose_gy"] == pytest.approx(vox.dose_gy[2]) and "D0.1cm³" in rec["near_max"]
+    mesh = result("mesh", None)
+    assert np.isnan(mesh.near_max_dose_gy())
+    assert mesh.near_max_dose_gy(np.full(4, 125.0)) == pytest.approx(mesh.dose_gy[2])

@@ -31,6 +31,9 @@ def largest_component(above: np.ndarray, what: str) -> np.ndarray:
 TISSUE_FLOOR_G_CM3 = 0.05
 #: The near-maximum every output reports: the minimum dose of the hottest this many cm³.
 NEAR_MAX_CM3 = 0.1
+#: What the ``near_max…`` entries of the run records and summaries are.
+NEAR_MAX_SAID = (f"D{NEAR_MAX_CM3:g}cm³: the lowest dose of the hottest {NEAR_MAX_CM3:g} cm³ of "
+                 f"the cells with density ≥ {TISSUE_FLOOR_G_CM3:g} g/cm³ (tissue, never air)")
 
 
 def near_max_gy(dose_gy: np.ndarray, volume_cm3: np.ndarray | float,

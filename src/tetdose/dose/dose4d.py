@@ -35,6 +35,8 @@ from typing import Any
 import numpy as np
 
 from tetdose._atomic import atomic_write_dir
+from tetdose._constants import MM3_PER_CM3
+from tetdose.core.body import NEAR_MAX_SAID, near_max_gy
 from tetdose.core.calibration import HUCalibration
 from tetdose.core.image import Image
 from tetdose.core.io import write_image, write_mesh
@@ -96,11 +98,13 @@ class Dose4D:
     body: BodyDose4D | None = None
 
     def summary(self) -> dict[str, object]:
-        """Ledger, lost photons and timing per phase, and the accumulated dose range.
+        """Ledger, lost photons, timing and the near-maximum dose in tissue (D0.1cm³,
+        :func:`tetdose.core.body.near_max_gy`) per phase, and the accumulated near-maxima.
 
         ``wall_s``: the phase's run (with dask: the whole distributed call); ``transport_s``:
         the time spent on this phase's batches (with dask: summed over its worker tasks).
         """
+        ref_cm3 = self.series.reference.volumes_mm3 / MM3_PER_CM3
         out: dict[str, object] = {
             "world": self.results[0].geometry,
             "physics": self.results[0].extra.get("physics", "kerma"),
@@ -108,16 +112,22 @@ class Dose4D:
                         "ledger": r.ledger, "lost_photons": r.lost_photons,
                         "relocations": r.relocations, "wall_s": r.wall_s,
                         "transport_s": r.extra.get("task_s", r.wall_s),
-                        "max_dose_gy": float(r.mesh_part().dose_gy.max()),
+                        "near_max_dose_gy": r.mesh_part().near_max_dose_gy(
+                            self.series.mesh(k).volumes_mm3),
                         "mesh_voxel_switches": int(r.counts_per_batch[:, 5].sum())}
                        for k, r in enumerate(self.results)],
-            "accumulated_max_dose_gy": float(self.accumulated.dose_gy.max()),
+            "accumulated_near_max_dose_gy": near_max_gy(
+                self.accumulated.dose_gy, ref_cm3, self.accumulated.mass_g / ref_cm3),
+            "near_max": NEAR_MAX_SAID,
             "weights": self.accumulated.weights.tolist(),
             "units": {"dose": self.results[0].record()["units"]["dose"]},
         }
-        if self.body is not None:
-            out["body_accumulated_max_dose_gy"] = float(self.body.accumulated.array.max())
-            out["combined_accumulated_max_dose_gy"] = float(self.body.combined.array.max())
+        if self.body is not None:  # densities of phase 0's voxels (mesh and body together)
+            vox = self.results[0].combined()
+            cm3 = vox.grid.voxel_volume_mm3 / MM3_PER_CM3
+            for key, img in (("body_accumulated", self.body.accumulated),
+                             ("combined_accumulated", self.body.combined)):
+                out[f"{key}_near_max_dose_gy"] = near_max_gy(img.array, cm3, vox.mass_g / cm3)
         return out
 
 
@@ -247,7 +257,7 @@ def write_dose4d(result: Dose4D, out_dir: str | os.PathLike[str]) -> Path:
         for k, r in enumerate(result.results):
             stem = f"phase_{result.series.phase_percent[k]:05.1f}"
             write_mesh(tmp / f"{stem}.vtu", r.to_mesh(result.series.mesh(k)))
-            r.save_json(tmp / f"{stem}.json")
+            r.save_json(tmp / f"{stem}.json", result.series.mesh(k).volumes_mm3)
         acc = result.accumulated
         write_mesh(tmp / "accumulated.vtu", result.series.reference.with_data(cell_data={
             "dose": acc.dose_gy, "dose_std": acc.dose_std_gy if acc.dose_std_gy is not None
