@@ -50,7 +50,6 @@ from tetdose.core.mesh import TetMesh
 from tetdose.core.overlap import Overlap, compute_overlap
 from tetdose.core.transfer import grid_dose_to_mesh, mesh_dose_to_grid
 from tetdose.dicom import write_rt_dose
-from tetdose.dose.accumulate import direct_dose_mapping, energy_mass_transfer
 from tetdose.dose.buildup import build_up_fraction, build_up_mask
 from tetdose.dose.dose4d import run_dose4d, write_dose4d
 from tetdose.mapping import map_density
@@ -319,25 +318,18 @@ class _Run:
     def _sigmas(self, ov0: Overlap, ov_ref: Overlap) -> dict[str, tuple[FloatArray, FloatArray]]:
         """(σ of the reference, σ of the evaluated dose) [Gy] on the CT grid for the pairs that
         have both: the static phase's mesh and voxel runs (batches), the accumulated mesh dose
-        (phases' σ in quadrature) and the two voxel accumulations, whose σ is each phase's
-        voxel σ carried the same way, Σ_p w_p² σ_p² — exact for the direct mapping up to its
-        interpolation, approximate for the energy/mass transfer (phase masses taken equal)."""
+        (phases' σ in quadrature) and the two voxel accumulations (:mod:`tetdose.dose.dose4d`)."""
         d4, grid = self.d4, self.ph.ct.grid
         mesh0 = mesh_std_to_grid(self.series.mesh(0), d4.results[0].mesh_part().dose_std_gy,
                                  grid, ov0).array
         acc = d4.accumulated
         acc_std = (np.zeros(grid.shape) if acc.dose_std_gy is None else
                    mesh_std_to_grid(self.series.reference, acc.dose_std_gy, grid, ov_ref).array)
-        w = np.asarray(acc.weights, float) / np.sum(acc.weights)
-        var = [r.to_images()[1].array ** 2 for r in d4.voxel.results]
-        pts, ref = self.series.points_mm, self.series.reference
-        ddm_var = direct_dose_mapping(ref, pts, [Image(len(w) * wp**2 * v, grid)
-                                                 for wp, v in zip(w, var, strict=True)], grid)
-        emt_var = energy_mass_transfer(ref, pts, [Image(v, grid) for v in var], self.density,
-                                       grid, weights=w).array * float(np.sum(w**2))
-        return {"static phase: voxel vs mesh": (d4.voxel.results[0].to_images()[1].array, mesh0),
-                "accumulated: energy/mass transfer vs mesh": (np.sqrt(emt_var), acc_std),
-                "accumulated: direct mapping vs mesh": (np.sqrt(ddm_var.array), acc_std)}
+        v = d4.voxel
+        return {"static phase: voxel vs mesh": (v.results[0].to_images()[1].array, mesh0),
+                "accumulated: energy/mass transfer vs mesh": (v.energy_mass_transfer_std.array,
+                                                              acc_std),
+                "accumulated: direct mapping vs mesh": (v.direct_mapping_std.array, acc_std)}
 
     def _dvh(self, ref_mesh, emt: Image, ddm: Image, sig: dict) -> dict[str, Any]:  # noqa: ANN001
         """DVHs of the accumulated doses with their ±1σ bands; per structure each DVH point,

@@ -137,3 +137,28 @@ def test_run_record_reports_the_near_max_in_tissue_not_the_air_voxel():
     mesh = result("mesh", None)
     assert np.isnan(mesh.near_max_dose_gy())
     assert mesh.near_max_dose_gy(np.full(4, 125.0)) == pytest.approx(mesh.dose_gy[2])
+
+
+def test_voxel_accumulations_carry_the_phases_sigma():
+    """Without motion both voxel accumulations are Σ_p w_p D_p, so their σ is exactly
+    sqrt(Σ_p w_p² σ_p²) (phases independent): here 3 phases of weights 0.5, 0.25, 0.25."""
+    from tetdose.dose.dose4d import _voxel_way
+    from tetdose.motion.phases import PhaseSeries
+    from tetdose.transport.history.result import COUNT_KEYS, DoseResult
+
+    grid = grid_for((-8.0,) * 3, (8.0,) * 3, (4.0,) * 3)
+    mesh = box_mesh((-4.0,) * 3, (4.0,) * 3, (2, 2, 2))
+    w = np.array([0.5, 0.25, 0.25])
+    series = PhaseSeries(mesh, np.stack([mesh.points_mm] * 3), time_weight=w)
+    rng = np.random.default_rng(3)
+    n, mass = grid.n_voxels, np.full(grid.n_voxels, 0.064)
+    results = [DoseResult(rng.uniform(0.5, 1.5, (4, n)), np.full(4, 10), mass,
+                          np.zeros((4, 5)), np.zeros((4, len(COUNT_KEYS)), np.int64), 1.0, p,
+                          "track_length", "voxel", 0.1, "0", grid=grid) for p in range(3)]
+    density = [Image(np.ones(grid.shape), grid)] * 3
+    v = _voxel_way(series, density, results)
+    expected = np.sqrt(sum(wp**2 * r.dose_std_gy**2 for wp, r in zip(w, results, strict=True)))
+    assert v.direct_mapping_std.array.ravel() == pytest.approx(expected, rel=1e-9)
+    assert v.energy_mass_transfer_std.array.ravel() == pytest.approx(expected, rel=1e-9)
+    dose = sum(wp * r.dose_gy for wp, r in zip(w, results, strict=True))
+    assert v.energy_mass_transfer.array.ravel() == pytest.approx(dose, rel=1e-9)

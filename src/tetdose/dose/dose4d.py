@@ -69,6 +69,8 @@ class VoxelDose4D:
     results: list[DoseResult]
     direct_mapping: Image  # (a) dose interpolated through the motion
     energy_mass_transfer: Image  # (b) energy and mass moved with the motion
+    direct_mapping_std: Image | None = None  # σ of (a) and (b) [Gy], see _voxel_way
+    energy_mass_transfer_std: Image | None = None
 
     @property
     def doses(self) -> list[Image]:
@@ -239,12 +241,22 @@ def _body_way(series: PhaseSeries, accumulated: AccumulatedDose,
 
 def _voxel_way(series: PhaseSeries, density: list[Image],
                results: list[DoseResult]) -> VoxelDose4D:
-    doses = [r.to_images()[0] for r in results]
+    """Both voxel accumulations and their σ: each phase's voxel variance σ_p² carried the same
+    way, Σ_p w_p² σ_p² (phases independent) — exact for the direct mapping up to its trilinear
+    interpolation (an upper bound), approximate for the energy/mass transfer (the phases' masses
+    in a voxel taken equal, the sub-voxel averaging ignored: an upper bound too)."""
+    images = [r.to_images() for r in results]
+    doses, var = [d for d, _ in images], [s.array**2 for _, s in images]
     ref, pts, w = series.reference, series.points_mm, series.time_weight
     grid = density[0].grid
+    wn = np.asarray(w, dtype=np.float64) / np.sum(w)
+    scaled = [Image(len(wn) * wp**2 * v, grid) for wp, v in zip(wn, var, strict=True)]
+    ddm_var = direct_dose_mapping(ref, pts, scaled, grid)  # equal weights 1/K: Σ_p w_p² σ_p²
+    emt_var = energy_mass_transfer(ref, pts, scaled, density, grid)
     return VoxelDose4D(density, results,
                        direct_dose_mapping(ref, pts, doses, grid, weights=w),
-                       energy_mass_transfer(ref, pts, doses, density, grid, weights=w))
+                       energy_mass_transfer(ref, pts, doses, density, grid, weights=w),
+                       Image(np.sqrt(ddm_var.array), grid), Image(np.sqrt(emt_var.array), grid))
 
 
 def write_dose4d(result: Dose4D, out_dir: str | os.PathLike[str]) -> Path:
@@ -281,5 +293,9 @@ def write_dose4d(result: Dose4D, out_dir: str | os.PathLike[str]) -> Path:
             write_image(vox / "accumulated_direct_mapping.nrrd", result.voxel.direct_mapping)
             write_image(vox / "accumulated_energy_mass_transfer.nrrd",
                         result.voxel.energy_mass_transfer)
+            for stem, std in (("direct_mapping", result.voxel.direct_mapping_std),
+                              ("energy_mass_transfer", result.voxel.energy_mass_transfer_std)):
+                if std is not None:  # σ beside each, for `tetdose compare`
+                    write_image(vox / f"accumulated_{stem}_std.nrrd", std)
         (tmp / "summary.json").write_text(json.dumps(result.summary(), indent=2) + "\n")
     return out
