@@ -41,7 +41,7 @@ from tetdose.core.transfer import weighted_pair_mass_g
 #: Draws of the expected γ pass rate for two unbiased runs.
 GAMMA_RESAMPLES = 2
 #: At most this many points per draw (a seeded sample of the points above the threshold).
-GAMMA_RESAMPLE_POINTS = 20_000
+GAMMA_RESAMPLE_POINTS = 10_000
 
 
 def mesh_std_to_grid(mesh: TetMesh, std_gy: FloatArray, grid: ImageGrid, overlap: Overlap
