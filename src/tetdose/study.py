@@ -301,7 +301,8 @@ class _Run:
         self.figures.append(dose_slices_figure(
             d4.body.combined, emt, labels=("organ mesh + body accumulated", "voxel EMT"), k=k,
             unit=_UNIT, ct_hu=self.ph.ct, mesh=ref_mesh, structures=named,
-            prescription_gy=self.plan.prescription.dose_gy if self.plan.prescription else None))
+            prescription_gy=self.plan.prescription.dose_gy if self.plan.prescription else None,
+            region=np.asarray(self.density[0].array) >= TISSUE_FLOOR_G_CM3))
         g = gamma_index(emt, d4.body.combined, dose_percent=3.0, dta_mm=3.0, normalization_gy=rx)
         gammas["accumulated, whole body: energy/mass transfer vs organ mesh + body 3%/3mm "
                "global"] = g.summary()

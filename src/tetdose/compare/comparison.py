@@ -176,7 +176,8 @@ def compare_doses(mesh: TetMesh, mesh_dose: FloatArray, voxel_dose: Image, *,
     cm3 = voxel.grid.voxel_volume_mm3 / MM3_PER_CM3
     norm = near_max_gy(np.where(region, ref.array, 0.0), cm3)
     k, centre_index = _hot_slice(ref.array, region, norm)
-    figures = [report.dose_slices_figure(mesh_img, voxel, k=k, unit=unit, mesh=mesh)]
+    figures = [report.dose_slices_figure(mesh_img, voxel, k=k, unit=unit, mesh=mesh,
+                                         region=region)]
     labels = ("mesh", "voxel") if reference == "voxel" else ("voxel", "mesh")
     above = region & (ref.array >= threshold_percent / 100.0 * norm)
     # without σ there is no Δ/σ to map (the summary says: compared as exact)

@@ -75,18 +75,22 @@ def dose_slices_figure(a: Image, b: Image, *, labels: tuple[str, str] = ("mesh",
                        k: int | None = None, unit: str = PER_PHOTON_UNIT,
                        ct_hu: Image | None = None, mesh: TetMesh | None = None,
                        structures: Mapping[str, int] | None = None,
-                       prescription_gy: float | None = None) -> Figure:
+                       prescription_gy: float | None = None,
+                       region: np.ndarray | None = None) -> Figure:
     """Axial slice k (default: through the maximum of ``a``) of both doses and a − b.
 
     Each dose is a colour wash over the CT (``ct_hu`` on the same grid, grey, HU −1000…400) with
     isodose lines at 95/50/20 % of ``prescription_gy`` (else of the slice maximum of ``a``) and
     the surfaces of ``mesh`` cut by the slice (one contour per ``structures`` name → region label,
     else the whole mesh), axes in mm (:mod:`tetdose.compare.slices`). ``unit``: "Gy" for
-    prescribed doses, else doses are per source photon (the default)."""
+    prescribed doses, else doses are per source photon (the default); ``region`` (boolean, the
+    grid's shape): the difference is drawn there only (the compared tissue, not air)."""
     if k is None:
         k = int(np.unravel_index(int(np.argmax(a.array)), a.array.shape)[0])
     sa, sb = np.asarray(a.array[k], float), np.asarray(b.array[k], float)
     diff = sa - sb
+    if region is not None:
+        diff = np.where(np.asarray(region, bool)[k], diff, np.nan)
     frame = SliceFrame(a, k)
     ct = None
     if ct_hu is not None and ct_hu.array.shape == a.array.shape:
@@ -105,7 +109,7 @@ def dose_slices_figure(a: Image, b: Image, *, labels: tuple[str, str] = ("mesh",
                             contours=contours)
         ax.set_title(title, fontsize=9)
         fig.colorbar(im, ax=ax, shrink=0.7, label=unit)
-    lim = max(float(np.abs(diff).max()), 1e-30)
+    lim = max(float(np.nanmax(np.abs(diff))) if np.isfinite(diff).any() else 0.0, 1e-30)
     im = axes[2].imshow(diff, origin="lower", extent=frame.extent, cmap="RdBu_r", vmin=-lim,
                         vmax=lim, interpolation="nearest")
     axes[2].set_xlim(min(frame.extent[:2]), max(frame.extent[:2]))
