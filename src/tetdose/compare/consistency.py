@@ -105,22 +105,15 @@ def compared_region(inside_mesh: BoolArray, body: BoolArray | None,
 
 def significance_table(a: FloatArray, sa: FloatArray, b: FloatArray, sb: FloatArray,
                        weight: FloatArray, masks: Mapping[str, BoolArray], fit_points: BoolArray
-                       ) -> tuple[dict[str, Any], FloatArray]:
-    """Per structure (name → mask, same shape as the doses): :func:`structure_significance`;
-    and the posterior probability of the systematic part over the first mask (the whole
-    compared region), NaN elsewhere."""
+                       ) -> dict[str, Any]:
+    """Per structure (name → mask, same shape as the doses): :func:`structure_significance`."""
     table: dict[str, Any] = {}
-    posterior = np.full(np.shape(a), np.nan)
-    for i, (name, mask) in enumerate(masks.items()):
+    for name, mask in masks.items():
         sel = np.asarray(mask, dtype=bool)
-        if sel.sum() < 2:
-            continue
-        row, post = structure_significance(a[sel], sa[sel], b[sel], sb[sel], weight[sel],
-                                           fit_points[sel])
-        table[name] = row
-        if i == 0:
-            posterior[sel] = post
-    return table, posterior
+        if sel.sum() >= 2:
+            table[name], _ = structure_significance(a[sel], sa[sel], b[sel], sb[sel],
+                                                    weight[sel], fit_points[sel])
+    return table
 
 
 def expected_gamma_pass(ref: Image, s_ref: FloatArray, ev: Image, s_ev: FloatArray, *,
@@ -157,7 +150,7 @@ def pair_significance(ref: Image, s_ref: FloatArray, ev: Image, s_ev: FloatArray
     above = region & (r >= threshold_gy)
     masks = {"compared region": region, **{n: region & np.asarray(m, bool)
                                            for n, m in masks.items()}}
-    table, _ = significance_table(e, s_ev, r, s_ref, weight, masks, above)
+    table = significance_table(e, s_ev, r, s_ref, weight, masks, above)
     figures: list[Any] = []
     if k is not None:
         z = normalised_difference(e, s_ev, r, s_ref)

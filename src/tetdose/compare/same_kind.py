@@ -110,7 +110,7 @@ def compare_meshes(mesh: TetMesh, a: FloatArray, sa: FloatArray | None, ref_mesh
     masks = {"compared region": region}
     if ref_mesh.region is not None:
         masks |= {f"region {r}": region & (ref_mesh.region == r) for r in np.unique(ref_mesh.region)}
-    table, _ = significance_table(a, s_a, b, s_b, weight, masks,
+    table = significance_table(a, s_a, b, s_b, weight, masks,
                                   b >= threshold_percent / 100.0 * norm)
     figures: list[report.Figure] = []
     dvh = _dvh_table({n: (a[m], s_a[m], b[m], s_b[m], cm3[m]) for n, m in masks.items()
