@@ -24,9 +24,12 @@ from typing import Any
 import numpy as np
 
 from tetdose._atomic import atomic_write_dir
+from tetdose._constants import MM3_PER_CM3
+from tetdose._typing import FloatArray
 from tetdose.compare.comparison import half_inside
+from tetdose.compare.consistency import expected_gamma_pass, mesh_std_to_grid, pair_significance
 from tetdose.compare.dose_kerma import beam_axis_profiles, dose_kerma_figure, structure_ratios
-from tetdose.compare.dvh import image_dvh, mesh_dvh
+from tetdose.compare.dvh_bands import banded_dvh, compare_points
 from tetdose.compare.gamma import gamma_index
 from tetdose.compare.profiles import image_profile, mesh_profile
 from tetdose.compare.report import (
@@ -39,11 +42,12 @@ from tetdose.compare.report import (
     render_png,
     write_report,
 )
+from tetdose.core.body import TISSUE_FLOOR_G_CM3
 from tetdose.core.calibration import HUCalibration
 from tetdose.core.image import Image
 from tetdose.core.io import write_mesh
 from tetdose.core.mesh import TetMesh
-from tetdose.core.overlap import compute_overlap
+from tetdose.core.overlap import Overlap, compute_overlap
 from tetdose.core.transfer import grid_dose_to_mesh, mesh_dose_to_grid
 from tetdose.dicom import write_rt_dose
 from tetdose.dose.buildup import build_up_fraction, build_up_mask
@@ -273,22 +277,44 @@ class _Run:
                  "static phase: voxel vs mesh": (static_vox, static_mesh),
                  "accumulated: energy/mass transfer vs mesh": (emt, acc_mesh),
                  "accumulated: direct mapping vs mesh": (ddm, acc_mesh)}
-        gammas = {}
+        # The body stops at the skin: only tissue (density ≥ the floor) is compared.
+        inside &= np.asarray(self.density[0].array) >= TISSUE_FLOOR_G_CM3
+        sig = self._sigmas(ov0, ov_ref)
+        gammas, significance = {}, {}
+        masks = {n: self.ph.labels.array == self.label_of[n] for n in STRUCTURES
+                 if n in self.label_of}
+        weight = np.asarray(self.density[0].array) * grid.voxel_volume_mm3 / MM3_PER_CM3
         for name, (a, b) in pairs.items():
-            g = gamma_index(a, b, dose_percent=3.0, dta_mm=3.0, mask=inside, normalization_gy=rx)
-            gammas[f"{name} 3%/3mm global"] = g.summary()
-            self.figures.append(gamma_figure(g, k=k))
+            kw = {"dose_percent": 3.0, "dta_mm": 3.0, "mask": inside, "normalization_gy": rx}
+            g = gamma_index(a, b, **kw)
+            row = g.summary()
+            if name in sig:  # σ of both doses: the pass rate noise alone would give
+                s_ref, s_ev = sig[name]
+                row |= expected_gamma_pass(a, s_ref, b, s_ev, **kw)
+                significance[name], figs = pair_significance(
+                    a, s_ref, b, s_ev, inside, masks, 0.1 * (rx or g.normalization_gy), weight,
+                    k=k if name.startswith("static phase:") else None,
+                    labels=("mesh", name.split(": ")[1].split(" vs")[0]), unit=_UNIT)
+                self.figures += figs
+            gammas[f"{name} 3%/3mm global"] = row
+            self.figures.append(gamma_figure(g, k=k, expected=row.get(
+                "expected_pass_rate_percent")))
+        self.summary["significance"] = significance
+        self.summary["compared_region"] = (
+            "voxels at least half inside the organ mesh in phase 0 and the reference phase, in "
+            f"tissue (density ≥ {TISSUE_FLOOR_G_CM3:g} g/cm³ in phase 0)")
         named = {n: self.label_of[n] for n in STRUCTURES
                  if n in self.label_of and (ref_mesh.region == self.label_of[n]).any()}
         self.figures.append(dose_slices_figure(
             d4.body.combined, emt, labels=("organ mesh + body accumulated", "voxel EMT"), k=k,
             unit=_UNIT, ct_hu=self.ph.ct, mesh=ref_mesh, structures=named,
-            prescription_gy=self.plan.prescription.dose_gy if self.plan.prescription else None))
+            prescription_gy=self.plan.prescription.dose_gy if self.plan.prescription else None,
+            region=np.asarray(self.density[0].array) >= TISSUE_FLOOR_G_CM3))
         g = gamma_index(emt, d4.body.combined, dose_percent=3.0, dta_mm=3.0, normalization_gy=rx)
         gammas["accumulated, whole body: energy/mass transfer vs organ mesh + body 3%/3mm "
                "global"] = g.summary()
         self.summary["gamma"] = gammas
-        self.summary["dvh"] = self._dvh(ref_mesh, emt, ddm)
+        self.summary["dvh"] = self._dvh(ref_mesh, emt, ddm, sig)
         self._profiles(ref_mesh, emt, ddm)
         write_rt_dose(d4.body.combined, self.out / "rtdose.dcm",
                       reference_ct=self.out / "ct4d" / "dicom" / "phase_000", plan=self.plan,
@@ -297,17 +323,45 @@ class _Run:
         return (f"gamma 3%/3mm static phase {matched['pass_rate_percent']:.1f} % (matched "
                 "resolution); RT Dose written")
 
-    def _dvh(self, ref_mesh, emt: Image, ddm: Image) -> dict[str, Any]:  # noqa: ANN001
+    def _sigmas(self, ov0: Overlap, ov_ref: Overlap) -> dict[str, tuple[FloatArray, FloatArray]]:
+        """(σ of the reference, σ of the evaluated dose) [Gy] on the CT grid for the pairs that
+        have both: the static phase's mesh and voxel runs (batches), the accumulated mesh dose
+        (phases' σ in quadrature) and the two voxel accumulations (:mod:`tetdose.dose.dose4d`)."""
+        d4, grid = self.d4, self.ph.ct.grid
+        mesh0 = mesh_std_to_grid(self.series.mesh(0), d4.results[0].mesh_part().dose_std_gy,
+                                 grid, ov0).array
+        acc = d4.accumulated
+        acc_std = (np.zeros(grid.shape) if acc.dose_std_gy is None else
+                   mesh_std_to_grid(self.series.reference, acc.dose_std_gy, grid, ov_ref).array)
+        v = d4.voxel
+        return {"static phase: voxel vs mesh": (v.results[0].to_images()[1].array, mesh0),
+                "accumulated: energy/mass transfer vs mesh": (v.energy_mass_transfer_std.array,
+                                                              acc_std),
+                "accumulated: direct mapping vs mesh": (v.direct_mapping_std.array, acc_std)}
+
+    def _dvh(self, ref_mesh, emt: Image, ddm: Image, sig: dict) -> dict[str, Any]:  # noqa: ANN001
+        """DVHs of the accumulated doses with their ±1σ bands; per structure each DVH point,
+        its σ, and the mesh–voxel differences flagged that exceed their combined σ."""
         curves, table = {}, {}
+        acc, v_cm3 = self.d4.accumulated, self.ph.ct.grid.voxel_volume_mm3 / MM3_PER_CM3
+        s_emt = sig["accumulated: energy/mass transfer vs mesh"][0]
+        s_ddm = sig["accumulated: direct mapping vs mesh"][0]
         for name in STRUCTURES:
             label = self.label_of.get(name)
             mask = self.ph.labels.array == label
-            if label is None or not (ref_mesh.region == label).any() or mask.sum() < 5:
+            sel = ref_mesh.region == label
+            if label is None or not sel.any() or mask.sum() < 5:
                 continue
-            hs = [mesh_dvh(ref_mesh, self.d4.accumulated.dose_gy, region=label, name="mesh"),
-                  image_dvh(emt, mask, name="voxel EMT"), image_dvh(ddm, mask, name="voxel DDM")]
+            hs = [banded_dvh(acc.dose_gy[sel], None if acc.dose_std_gy is None
+                             else acc.dose_std_gy[sel], ref_mesh.volumes_mm3[sel] / MM3_PER_CM3,
+                             name="mesh"),
+                  *(banded_dvh(img.array[mask], s[mask], np.full(int(mask.sum()), v_cm3),
+                               name=n) for img, s, n in ((emt, s_emt, "voxel EMT"),
+                                                         (ddm, s_ddm, "voxel DDM")))]
             curves[name] = hs
-            table[name] = {h.name: h.metrics() for h in hs}
+            table[name] = {h.name: h.metrics() | {"sigma": h.metrics_sigma()} for h in hs}
+            table[name]["points"] = {f"mesh − {h.name}": compare_points(hs[0], h)
+                                     for h in hs[1:]}
         if self.c.physics == "dose":  # measured on phase 0 (stage kerma): dose < 95 % of kerma
             below = {n: r["mass_fraction_dose_below_kerma"]
                      for n, r in self.summary["dose_vs_kerma"]["structures"].items()}

@@ -92,8 +92,8 @@ def test_cli_rtplan_with_prescription_gives_gy(water_ct, tmp_path):
                  str(tmp_path / "plan.dcm"), "-o", str(tmp_path / "raw.nrrd")) == 0
     raw = json.loads((tmp_path / "raw.json").read_text())
     assert raw["units"]["dose"] == PER_PHOTON_UNIT
-    assert raw["max_dose_gy"] * rec["prescription_scale"] == pytest.approx(rec["max_dose_gy"],
-                                                                          rel=1e-9)
+    assert raw["near_max_dose_gy"] * rec["prescription_scale"] == pytest.approx(
+        rec["near_max_dose_gy"], rel=1e-9)
 
 
 def test_absolute_result_needs_the_structure(water_ct):

@@ -96,3 +96,29 @@ def test_interrupted_run_leaves_previous_output_untouched(tmp_path, monkeypatch)
     assert main(["demo", "--quick", "-q", "-o", str(out)]) == 130
     assert [p.name for p in tmp_path.iterdir()] == ["demo-out"]  # no temp folder left behind
     assert (out / "keep.txt").read_text() == "previous run"
+
+
+@pytest.mark.slow
+def test_demo_tells_physics_from_noise(demo):
+    """Every pair of the demo with σ on both sides is reported per structure with its mean
+    relative difference ± 1σ and its systematic part; γ carries the pass rate noise alone would
+    give; the DVH points carry σ; the Δ/σ and σ maps are drawn; air is not compared."""
+    out, s = demo
+    assert "tissue" in s["compared_region"]
+    pairs = s["significance"]
+    assert set(pairs) == {"static phase: voxel vs mesh",
+                          "accumulated: energy/mass transfer vs mesh",
+                          "accumulated: direct mapping vs mesh"}
+    for rows in pairs.values():
+        row = rows["compared region"]
+        for key in ("mean_rel_diff", "mean_rel_diff_sigma", "systematic_rel_diff",
+                    "systematic_fraction"):
+            assert row[key] is not None and abs(row[key]) <= 1.0, key
+        assert row["mean_rel_diff_sigma"] > 0 and row["systematic_model"] in ("none", "all", "part")
+    g = s["gamma"]["static phase: voxel vs mesh 3%/3mm global"]
+    assert 0.0 < g["expected_pass_rate_percent"] <= 100.0
+    assert s["dvh"]["tumour"]["mesh"]["sigma"]["D95"] > 0
+    assert "significant" in s["dvh"]["tumour"]["points"]["mesh − voxel EMT"]["D95"]
+    names = set(json.loads((out / "report" / "figures.json").read_text()))
+    assert any(n.startswith("significance_k") for n in names)
+    assert any(n.startswith("sigma_k") for n in names)

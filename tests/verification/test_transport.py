@@ -282,7 +282,9 @@ def test_cli_dose_on_mesh_and_on_ct(tmp_path, water_box):
     assert rec["histories"] == 2000 and rec["seed"] == 4 and rec["lost_photons"] == 0
     assert rec["ledger"]["source_mev"] == pytest.approx(1.25, rel=0.05)
     assert np.all(out_mesh.cell_data["dose"] >= 0)
-    assert out_mesh.cell_data["dose"].max() == pytest.approx(rec["max_dose_gy"], rel=1e-6)
+    # the record's near-maximum: D0.1cm³ over the tets (all water), not above the hottest tet
+    hottest = np.sort(out_mesh.cell_data["dose"])[::-1]
+    assert hottest[-1] <= rec["near_max_dose_gy"] <= hottest[0] and "D0.1cm³" in rec["near_max"]
     assert np.all(out_mesh.cell_data["dose_std"] >= 0)
     dose = read_image(tmp_path / "dose.nrrd")
     std = read_image(tmp_path / "dose_std.nrrd")

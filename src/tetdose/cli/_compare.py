@@ -1,4 +1,5 @@
-"""``tetdose compare`` (mesh vs voxel dose report) and ``tetdose export-dose`` (RT Dose).
+"""``tetdose compare`` (mesh vs voxel dose report; or two doses of one kind with ``--dose`` and
+``--reference-dose``, :mod:`tetdose.compare.same_kind`) and ``tetdose export-dose`` (RT Dose).
 
 Both subcommands live here; ``add_args`` tells them apart by the subparser's name. Argument
 parsing and printing only: the comparison is :func:`tetdose.compare.comparison.compare_doses`
@@ -36,12 +37,17 @@ def add_args(parser: argparse.ArgumentParser) -> None:
         parser.add_argument("--bits", type=int, choices=(16, 32), default=16)
         _add_dose_to(parser)
         return
-    parser.add_argument("--mesh-dose", required=True, type=Path,
+    parser.add_argument("--mesh-dose", type=Path,
                         help="dose VTU (cell_data dose; dose_std: its σ) or a folder holding "
                              "accumulated.vtu")
-    parser.add_argument("--voxel-dose", required=True, type=Path,
+    parser.add_argument("--voxel-dose", type=Path,
                         help="dose image (.nrrd …; its σ: *_std beside it, dose_std.nrrd for "
                              "dose.nrrd) or a folder holding accumulated.nrrd")
+    parser.add_argument("--dose", type=Path,
+                        help="instead of --mesh-dose/--voxel-dose: a dose of the same kind as "
+                             "--reference-dose (two images on one grid, or two VTUs of one mesh "
+                             "topology: phase vs phase, tetdose vs an imported dose)")
+    parser.add_argument("--reference-dose", type=Path, help="the reference for --dose")
     parser.add_argument("--structures", type=Path,
                         help="label image (0 = background) or a DICOM RTSTRUCT file")
     parser.add_argument("--ct", type=Path,
@@ -101,14 +107,68 @@ def _find(path: Path, stem: str, suffixes: tuple[str, ...], what: str) -> Path:
 
 
 def _run_compare(args: argparse.Namespace) -> int:
+    pair = (args.dose is not None, args.reference_dose is not None)
+    mixed = (args.mesh_dose is not None, args.voxel_dose is not None)
+    if pair == (True, True) and mixed == (False, False):
+        return _run_same_kind(args)
+    if mixed != (True, True) or any(pair):
+        raise OptionError("give --mesh-dose and --voxel-dose (a mesh dose against a voxel "
+                          "dose), or --dose and --reference-dose (two doses of one kind)")
+    return _run_mesh_voxel(args)
+
+
+def _run_same_kind(args: argparse.Namespace) -> int:
+    from tetdose.compare.comparison import read_mesh_dose, read_structure_masks, recorded_dose_unit
+    from tetdose.compare.consistency import mesh_dose_std, read_dose_std_image
+    from tetdose.compare.report import write_report
+    from tetdose.compare.same_kind import compare_images, compare_meshes
+    from tetdose.core.io import read_ct, read_image
+    from tetdose.meshing.labels import body_mask
+
+    check_output(args, folder=True)
+    unit = recorded_dose_unit(args.dose)
+    kinds = [p.suffix.lower() in MESH_SUFFIXES for p in (args.dose, args.reference_dose)]
+    if kinds[0] != kinds[1]:
+        raise OptionError("--dose and --reference-dose are of different kinds (a mesh and an "
+                          "image); use --mesh-dose and --voxel-dose for those")
+    if kinds[0]:
+        (ma, da), (mb, db) = read_mesh_dose(args.dose), read_mesh_dose(args.reference_dose)
+        figures, summary = compare_meshes(ma, da, mesh_dose_std(ma), mb, db, mesh_dose_std(mb),
+                                          threshold_percent=args.threshold, unit=unit)
+    else:
+        a, b = read_image(args.dose), read_image(args.reference_dose)
+        density = body = None
+        if args.ct is not None:
+            ct = read_ct(args.ct)
+            density = ct.with_array(calibration_from(args).density(ct.array).astype(float))
+            body = body_mask(ct.array)
+        masks = read_structure_masks(args.structures, b.grid) if args.structures else None
+        figures, summary = compare_images(
+            a, read_dose_std_image(args.dose, a.grid), b,
+            read_dose_std_image(args.reference_dose, b.grid), structures=masks, density=density,
+            body=body, threshold_percent=args.threshold, gamma_max_points=args.gamma_max_points,
+            unit=unit)
+    write_report(args.output, figures, summary)
+    print(f"compared: {summary['region']['description']}")
+    print(f"σ: dose {summary['uncertainty']['dose']}; reference "
+          f"{summary['uncertainty']['reference']}")
+    for name, row in summary["structures"].items():
+        print(_significance_line(name, row))
+    for name, g in summary.get("gamma", {}).items():
+        print(f"gamma {name}: {g['pass_rate_percent']:.2f} % pass (two unbiased runs of these "
+              f"σ: {g['expected_pass_rate_percent']:.1f} %)")
+    print(f"report → {args.output / 'report.html'}")
+    return 0
+
+
+def _run_mesh_voxel(args: argparse.Namespace) -> int:
     from tetdose.compare.comparison import (
         compare_doses,
-        mesh_dose_std,
-        read_dose_std_image,
         read_mesh_dose,
         read_structure_masks,
         recorded_dose_unit,
     )
+    from tetdose.compare.consistency import mesh_dose_std, read_dose_std_image
     from tetdose.core.io import read_ct, read_image
     from tetdose.dose.dose_to import recorded_dose_to, require_same
     from tetdose.meshing.labels import body_mask

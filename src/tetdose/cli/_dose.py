@@ -11,6 +11,7 @@ beside the output (``dose.json`` for ``dose.vtu``).
 from __future__ import annotations
 
 import argparse
+import json
 from contextlib import nullcontext
 from pathlib import Path
 from typing import Any
@@ -314,7 +315,8 @@ def run(args: argparse.Namespace) -> int:
             write_image(voxels_out, part.with_array(part.array.astype(np.float32)))
             outputs.append(str(voxels_out))
     result = result.with_extra(**extra, world=world.kind, outputs=outputs)
-    path = result.save_json(record_path(args.output))
+    path = result.save_json(record_path(args.output),
+                            None if mesh is None else mesh.volumes_mm3)
     if not args.quiet:
         print(summary_line(result, world.kind, outputs, path))
         if "target" in result.extra:
@@ -357,8 +359,9 @@ def summary_line(result: Any, world: str, outputs: list[str], path: Path) -> str
     """The one line ``dose`` prints: histories, time, maximum dose, and the energy absorbed in
     and escaping the world per source particle (photons and electrons)."""
     unit = result.record()["units"]["dose"]
-    return (f"dose ({world}): {result.n_histories} histories in {result.wall_s:.1f} s; max "
-            f"{result.dose_gy.max():.4g} {unit}; absorbed {result.absorbed_mev:.4g} MeV and "
+    near = json.loads(path.read_text())["near_max_dose_gy"]
+    return (f"dose ({world}): {result.n_histories} histories in {result.wall_s:.1f} s; "
+            f"near-max (D0.1cm³ in tissue) {near:.4g} {unit}; absorbed {result.absorbed_mev:.4g} MeV and "
             f"escaped {result.escaped_mev:.4g} MeV per particle → {', '.join(outputs)}, {path}")
 
 
@@ -404,7 +407,7 @@ def _run_ompmc(args: argparse.Namespace, plan: Any, settings: Any, mesh: Any, de
     outputs += _write_images(voxel, image_out)
     world = "voxel (ompmc)" if mesh is None else "mesh (ompmc voxel energy on the tets)"
     result = main.with_extra(**extra, world=world, outputs=outputs)
-    path = result.save_json(record_path(args.output))
+    path = result.save_json(record_path(args.output), None if mesh is None else mesh.volumes_mm3)
     if not args.quiet:
         print(summary_line(result, world, outputs, path))
     return 0

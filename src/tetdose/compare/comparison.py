@@ -40,13 +40,11 @@ from tetdose.compare.consistency import (
     compared_region,
     expected_gamma_pass,
     mesh_std_to_grid,
-    significance_table,
+    pair_significance,
 )
 from tetdose.compare.dvh_bands import banded_dvh, compare_points
 from tetdose.compare.gamma import gamma_index
-from tetdose.compare.noise_figures import sigma_maps_figure, significance_figure
 from tetdose.compare.profiles import image_profile, mesh_profile
-from tetdose.compare.significance import normalised_difference
 from tetdose.core.body import NEAR_MAX_CM3, TISSUE_FLOOR_G_CM3, near_max_gy
 from tetdose.core.image import Image, ImageGrid
 from tetdose.core.mass import tet_mass_g
@@ -125,36 +123,6 @@ def read_mesh_dose(path: str | Path) -> tuple[TetMesh, FloatArray]:
     return mesh, np.asarray(mesh.cell_data["dose"], dtype=np.float64).reshape(-1)
 
 
-def mesh_dose_std(mesh: TetMesh) -> FloatArray | None:
-    """The per-tet σ [Gy] of a dose VTU (cell_data ``dose_std``), None when absent or all zero
-    (an imported dose without σ is written with zeros)."""
-    s = mesh.cell_data.get("dose_std")
-    if s is None:
-        return None
-    s = np.asarray(s, dtype=np.float64).reshape(-1)
-    return s if np.any(s > 0) else None
-
-
-def std_image_path(dose_path: str | Path) -> Path:
-    """Where a dose image's σ lies: ``*_std`` beside it (dose.nrrd → dose_std.nrrd,
-    accumulated_voxel_part.nrrd → accumulated_voxel_part_std.nrrd)."""
-    path = Path(dose_path)
-    stem, _, suffix = path.name.partition(".")
-    return path.with_name(f"{stem}_std.{suffix}")
-
-
-def read_dose_std_image(dose_path: str | Path, grid: ImageGrid) -> Image | None:
-    """The σ image beside a dose image (:func:`std_image_path`), None when there is none."""
-    from tetdose.core.io import read_image
-
-    path = std_image_path(dose_path)
-    if not path.exists():
-        return None
-    std = read_image(path)
-    grid.require_same(std.grid, f"the dose {dose_path} and its σ {path}")
-    return std.with_array(np.asarray(std.array, dtype=np.float64))
-
-
 def recorded_dose_unit(dose_path: str | Path) -> str:
     """The dose unit a run record beside ``dose_path`` states (``<stem>.json`` of ``tetdose
     dose``, ``summary.json`` of ``tetdose dose4d``): "Gy per fraction" when prescribed, else
@@ -208,19 +176,15 @@ def compare_doses(mesh: TetMesh, mesh_dose: FloatArray, voxel_dose: Image, *,
     cm3 = voxel.grid.voxel_volume_mm3 / MM3_PER_CM3
     norm = near_max_gy(np.where(region, ref.array, 0.0), cm3)
     k, centre_index = _hot_slice(ref.array, region, norm)
-    figures = [report.dose_slices_figure(mesh_img, voxel, k=k, unit=unit, mesh=mesh)]
+    figures = [report.dose_slices_figure(mesh_img, voxel, k=k, unit=unit, mesh=mesh,
+                                         region=region)]
     labels = ("mesh", "voxel") if reference == "voxel" else ("voxel", "mesh")
     above = region & (ref.array >= threshold_percent / 100.0 * norm)
-    weight = regions.voxel_weight()
-    masks = {"compared region": region, **{n: region & np.asarray(m, bool)
-                                           for n, m in (structures or {}).items()}}
-    table, _ = significance_table(ev.array, s_ev, ref.array, s_ref, weight, masks, above)
-    if sig.any:  # without σ there is no Δ/σ to map (the summary says: compared as exact)
-        z = normalised_difference(ev.array, s_ev, ref.array, s_ref)
-        figures.append(significance_figure(ref, ev.array - ref.array, z, region, above, k=k,
-                                           labels=labels, unit=unit))
-        figures.append(sigma_maps_figure(ref, sig.relative(ev, s_ev), sig.relative(ref, s_ref),
-                                         region, k=k, labels=labels))
+    # without σ there is no Δ/σ to map (the summary says: compared as exact)
+    table, noise_figures = pair_significance(
+        ref, s_ref, ev, s_ev, region, structures or {}, threshold_percent / 100.0 * norm,
+        regions.voxel_weight(), k=k if sig.any else None, labels=labels, unit=unit)
+    figures += noise_figures
     gammas = _gammas(ref, ev, (s_ref, s_ev) if sig.any else None, region, k, norm, criteria,
                      threshold_percent, gamma_max_points, figures)
     dvh_summary = _dvhs(mesh, dose, mesh_img, voxel, {"mesh": region, **(structures or {})},
@@ -274,11 +238,6 @@ class _Sigmas:
                      "voxel": "σ from the dose's _std image (batches)" if voxel_std is not None
                      else "no σ given: compared as exact"}
 
-    def relative(self, dose: Image, s: FloatArray) -> FloatArray | None:
-        if not np.any(s > 0):
-            return None
-        d = np.asarray(dose.array, float)
-        return np.divide(s, d, out=np.zeros_like(d), where=d > 0)
 
 
 def _gammas(ref: Image, ev: Image, sigmas: tuple[FloatArray, FloatArray] | None,

@@ -1,6 +1,8 @@
 """The uncertainty side of a comparison: σ on the compared grid, the region compared (inside the
 body, in tissue), the per-structure significance table, and γ's expected pass rate for noise.
 
+**σ files.** A mesh dose's σ is its cell_data ``dose_std``; an image's is ``*_std`` beside it.
+
 **σ of a mesh dose on voxels.** The transfer D_j = Σ_k D_k m_kj / Σ_k m_kj
 (:func:`tetdose.core.transfer.mesh_dose_to_grid`) is linear in independent tet doses, so
 σ_j = sqrt(Σ_k σ_k² m_kj²) / Σ_k m_kj.
@@ -21,13 +23,15 @@ approximate — slightly low where the doses are very noisy.
 from __future__ import annotations
 
 from collections.abc import Mapping
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from tetdose._typing import BoolArray, FloatArray
 from tetdose.compare.gamma import gamma_index
-from tetdose.compare.significance import structure_significance
+from tetdose.compare.noise_figures import sigma_maps_figure, significance_figure
+from tetdose.compare.significance import normalised_difference, structure_significance
 from tetdose.core.body import TISSUE_FLOOR_G_CM3
 from tetdose.core.image import Image, ImageGrid
 from tetdose.core.mesh import TetMesh
@@ -37,7 +41,7 @@ from tetdose.core.transfer import weighted_pair_mass_g
 #: Draws of the expected γ pass rate for two unbiased runs.
 GAMMA_RESAMPLES = 2
 #: At most this many points per draw (a seeded sample of the points above the threshold).
-GAMMA_RESAMPLE_POINTS = 20_000
+GAMMA_RESAMPLE_POINTS = 10_000
 
 
 def mesh_std_to_grid(mesh: TetMesh, std_gy: FloatArray, grid: ImageGrid, overlap: Overlap
@@ -50,6 +54,36 @@ def mesh_std_to_grid(mesh: TetMesh, std_gy: FloatArray, grid: ImageGrid, overlap
     mass = np.bincount(overlap.voxel, weights=m_kj, minlength=grid.n_voxels)
     out = np.divide(np.sqrt(var), mass, out=np.zeros_like(mass), where=mass > 0)
     return Image(out.reshape(grid.shape), grid)
+
+
+def mesh_dose_std(mesh: TetMesh) -> FloatArray | None:
+    """The per-tet σ [Gy] of a dose VTU (cell_data ``dose_std``), None when absent or all zero
+    (an imported dose without σ is written with zeros)."""
+    s = mesh.cell_data.get("dose_std")
+    if s is None:
+        return None
+    s = np.asarray(s, dtype=np.float64).reshape(-1)
+    return s if np.any(s > 0) else None
+
+
+def std_image_path(dose_path: str | Path) -> Path:
+    """Where a dose image's σ lies: ``*_std`` beside it (dose.nrrd → dose_std.nrrd,
+    accumulated_voxel_part.nrrd → accumulated_voxel_part_std.nrrd)."""
+    path = Path(dose_path)
+    stem, _, suffix = path.name.partition(".")
+    return path.with_name(f"{stem}_std.{suffix}")
+
+
+def read_dose_std_image(dose_path: str | Path, grid: ImageGrid) -> Image | None:
+    """The σ image beside a dose image (:func:`std_image_path`), None when there is none."""
+    from tetdose.core.io import read_image
+
+    path = std_image_path(dose_path)
+    if not path.exists():
+        return None
+    std = read_image(path)
+    grid.require_same(std.grid, f"the dose {dose_path} and its σ {path}")
+    return std.with_array(np.asarray(std.array, dtype=np.float64))
 
 
 def compared_region(inside_mesh: BoolArray, body: BoolArray | None,
@@ -71,22 +105,15 @@ def compared_region(inside_mesh: BoolArray, body: BoolArray | None,
 
 def significance_table(a: FloatArray, sa: FloatArray, b: FloatArray, sb: FloatArray,
                        weight: FloatArray, masks: Mapping[str, BoolArray], fit_points: BoolArray
-                       ) -> tuple[dict[str, Any], FloatArray]:
-    """Per structure (name → mask, same shape as the doses): :func:`structure_significance`;
-    and the posterior probability of the systematic part over the first mask (the whole
-    compared region), NaN elsewhere."""
+                       ) -> dict[str, Any]:
+    """Per structure (name → mask, same shape as the doses): :func:`structure_significance`."""
     table: dict[str, Any] = {}
-    posterior = np.full(np.shape(a), np.nan)
-    for i, (name, mask) in enumerate(masks.items()):
+    for name, mask in masks.items():
         sel = np.asarray(mask, dtype=bool)
-        if sel.sum() < 2:
-            continue
-        row, post = structure_significance(a[sel], sa[sel], b[sel], sb[sel], weight[sel],
-                                           fit_points[sel])
-        table[name] = row
-        if i == 0:
-            posterior[sel] = post
-    return table, posterior
+        if sel.sum() >= 2:
+            table[name], _ = structure_significance(a[sel], sa[sel], b[sel], sb[sel],
+                                                    weight[sel], fit_points[sel])
+    return table
 
 
 def expected_gamma_pass(ref: Image, s_ref: FloatArray, ev: Image, s_ev: FloatArray, *,
@@ -109,3 +136,27 @@ def expected_gamma_pass(ref: Image, s_ref: FloatArray, ev: Image, s_ev: FloatArr
     return {"expected_pass_rate_percent": float(np.mean(rates)),
             "expected_pass_rate_spread_percent": float(np.std(rates, ddof=1))
             if len(rates) > 1 else 0.0}
+
+
+def pair_significance(ref: Image, s_ref: FloatArray, ev: Image, s_ev: FloatArray,
+                      region: BoolArray, masks: Mapping[str, BoolArray], threshold_gy: float,
+                      weight: FloatArray, *, k: int | None = None,
+                      labels: tuple[str, str] = ("evaluated", "reference"),
+                      unit: str = "Gy") -> tuple[dict[str, Any], list[Any]]:
+    """One pair of doses on one grid: the significance table over ``region`` and each mask
+    within it (fitted over the points ≥ ``threshold_gy`` of the reference), and, when ``k`` is
+    given, the Δ/σ and σ-map figures of slice k."""
+    e, r = np.asarray(ev.array, float), np.asarray(ref.array, float)
+    above = region & (r >= threshold_gy)
+    masks = {"compared region": region, **{n: region & np.asarray(m, bool)
+                                           for n, m in masks.items()}}
+    table = significance_table(e, s_ev, r, s_ref, weight, masks, above)
+    figures: list[Any] = []
+    if k is not None:
+        z = normalised_difference(e, s_ev, r, s_ref)
+        figures.append(significance_figure(ref, e - r, z, region, above, k=k, labels=labels,
+                                           unit=unit))
+        rel = [np.divide(s, d, out=np.zeros_like(d), where=d > 0) if np.any(s > 0) else None
+               for s, d in ((s_ev, e), (s_ref, r))]
+        figures.append(sigma_maps_figure(ref, rel[0], rel[1], region, k=k, labels=labels))
+    return table, figures

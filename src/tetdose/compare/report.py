@@ -21,12 +21,14 @@ from typing import Any
 import numpy as np
 
 from tetdose._atomic import atomic_write_dir
+from tetdose._constants import MM3_PER_CM3
 from tetdose._typing import FloatArray
 from tetdose.compare.dvh import DVH
 from tetdose.compare.dvh_bands import BandedDVH
 from tetdose.compare.gamma import GammaResult
 from tetdose.compare.profiles import Profile
 from tetdose.compare.slices import ISODOSE_FRACTIONS, SliceFrame, draw_dose_wash
+from tetdose.core.body import near_max_gy
 from tetdose.core.image import Image
 from tetdose.core.mesh import TetMesh
 from tetdose.plan.prescription import PER_PHOTON_UNIT
@@ -75,23 +77,30 @@ def dose_slices_figure(a: Image, b: Image, *, labels: tuple[str, str] = ("mesh",
                        k: int | None = None, unit: str = PER_PHOTON_UNIT,
                        ct_hu: Image | None = None, mesh: TetMesh | None = None,
                        structures: Mapping[str, int] | None = None,
-                       prescription_gy: float | None = None) -> Figure:
+                       prescription_gy: float | None = None,
+                       region: np.ndarray | None = None) -> Figure:
     """Axial slice k (default: through the maximum of ``a``) of both doses and a − b.
 
     Each dose is a colour wash over the CT (``ct_hu`` on the same grid, grey, HU −1000…400) with
-    isodose lines at 95/50/20 % of ``prescription_gy`` (else of the slice maximum of ``a``) and
+    isodose lines at 95/50/20 % of ``prescription_gy`` (else of the near-maximum D0.1cm³ of ``a``
+    on the slice, in ``region`` when given) and
     the surfaces of ``mesh`` cut by the slice (one contour per ``structures`` name → region label,
     else the whole mesh), axes in mm (:mod:`tetdose.compare.slices`). ``unit``: "Gy" for
-    prescribed doses, else doses are per source photon (the default)."""
+    prescribed doses, else doses are per source photon (the default); ``region`` (boolean, the
+    grid's shape): the difference is drawn there only (the compared tissue, not air)."""
     if k is None:
         k = int(np.unravel_index(int(np.argmax(a.array)), a.array.shape)[0])
     sa, sb = np.asarray(a.array[k], float), np.asarray(b.array[k], float)
     diff = sa - sb
+    if region is not None:
+        diff = np.where(np.asarray(region, bool)[k], diff, np.nan)
     frame = SliceFrame(a, k)
     ct = None
     if ct_hu is not None and ct_hu.array.shape == a.array.shape:
         ct = np.asarray(ct_hu.array[k], float)
-    reference = prescription_gy if prescription_gy else max(float(sa.max()), 1e-30)
+    tissue = np.ones(sa.shape, bool) if region is None else np.asarray(region, bool)[k]
+    near = near_max_gy(np.where(tissue, sa, 0.0), a.grid.voxel_volume_mm3 / MM3_PER_CM3)
+    reference = prescription_gy if prescription_gy else max(near, 1e-30)
     isodose = [f * reference for f in ISODOSE_FRACTIONS]
     contours = {}
     if mesh is not None:
@@ -105,7 +114,7 @@ def dose_slices_figure(a: Image, b: Image, *, labels: tuple[str, str] = ("mesh",
                             contours=contours)
         ax.set_title(title, fontsize=9)
         fig.colorbar(im, ax=ax, shrink=0.7, label=unit)
-    lim = max(float(np.abs(diff).max()), 1e-30)
+    lim = max(float(np.nanmax(np.abs(diff))) if np.isfinite(diff).any() else 0.0, 1e-30)
     im = axes[2].imshow(diff, origin="lower", extent=frame.extent, cmap="RdBu_r", vmin=-lim,
                         vmax=lim, interpolation="nearest")
     axes[2].set_xlim(min(frame.extent[:2]), max(frame.extent[:2]))
@@ -116,7 +125,7 @@ def dose_slices_figure(a: Image, b: Image, *, labels: tuple[str, str] = ("mesh",
     axes[2].tick_params(labelsize=7)
     fig.colorbar(im, ax=axes[2], shrink=0.7, label=unit)
     basis = (f"{prescription_gy:g} Gy prescribed" if prescription_gy
-             else f"the maximum {reference:.3g} {unit}")
+             else f"the slice's near-maximum (D0.1cm³) {reference:.3g} {unit}")
     fig.suptitle(f"Axial slice k = {k} (z = {frame.z_mm:.1f} mm); isodoses 95/50/20 % of {basis}",
                  fontsize=10)
     data = {"k": k, "z_mm": frame.z_mm, "extent_mm": frame.extent, labels[0]: sa, labels[1]: sb,

@@ -50,7 +50,8 @@ from scipy import optimize, special
 
 from tetdose._typing import FloatArray
 
-#: Grid of relative systematic differences searched before refinement.
+#: Grid of relative systematic differences searched before refinement (|δ| ≤ 50 %; beyond, the
+#: doses differ by more than any comparison of noise needs to tell).
 DELTA_GRID = np.linspace(-0.5, 0.5, 101)
 #: At most this many points enter the mixture fit (a seeded uniform sample beyond).
 FIT_MAX_POINTS = 50_000

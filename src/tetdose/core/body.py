@@ -24,10 +24,16 @@ def largest_component(above: np.ndarray, what: str) -> np.ndarray:
     return labels == int(np.argmax(sizes))
 
 
-#: Tissue: density at least this [g/cm³] (lung ≈ 0.26; air and the couch's foam below).
-TISSUE_FLOOR_G_CM3 = 0.2
+#: Tissue: density at least this [g/cm³] (≈ −950 HU on Schneider et al.'s calibration). Inflated
+#: lung (−850 HU ≈ 0.16 g/cm³) is tissue; air (−1000 HU ≈ 0.001 g/cm³), the airways' air and
+#: the noise of near-empty voxels are not. (0.2 g/cm³ would drop much of the lung, the organ
+#: tetdose's breathing studies are about.)
+TISSUE_FLOOR_G_CM3 = 0.05
 #: The near-maximum every output reports: the minimum dose of the hottest this many cm³.
 NEAR_MAX_CM3 = 0.1
+#: What the ``near_max…`` entries of the run records and summaries are.
+NEAR_MAX_SAID = (f"D{NEAR_MAX_CM3:g}cm³: the lowest dose of the hottest {NEAR_MAX_CM3:g} cm³ of "
+                 f"the cells with density ≥ {TISSUE_FLOOR_G_CM3:g} g/cm³ (tissue, never air)")
 
 
 def near_max_gy(dose_gy: np.ndarray, volume_cm3: np.ndarray | float,

@@ -38,8 +38,9 @@ from pathlib import Path
 import numpy as np
 
 from tetdose._atomic import atomic_write_dir
-from tetdose._constants import G_PER_KG, J_PER_MEV
+from tetdose._constants import G_PER_KG, J_PER_MEV, MM3_PER_CM3
 from tetdose._typing import FloatArray
+from tetdose.core.body import NEAR_MAX_SAID, near_max_gy
 from tetdose.core.image import Image
 from tetdose.core.io import write_image, write_mesh
 from tetdose.core.mass import mass_g, tet_mass_g
@@ -93,15 +94,19 @@ class ImportedDose4D:
 
     def summary(self) -> dict[str, object]:
         mass = [tet_mass_g(self.series.mesh(k)) for k in range(self.series.n_phases)]
+        cm3 = [self.series.mesh(k).volumes_mm3 / MM3_PER_CM3 for k in range(self.series.n_phases)]
+        ref_cm3 = self.series.reference.volumes_mm3 / MM3_PER_CM3
         return {
             "imported": True,
             "phases": [{"phase_percent": float(self.series.phase_percent[k]),
                         "time_weight": float(self.series.time_weight[k]),
                         "source": p.source, "kind": p.kind,
                         "energy_j": float(np.dot(p.dose_gy, mass[k]) / G_PER_KG),  # in the mesh
-                        "max_dose_gy": float(p.dose_gy.max())}
+                        "near_max_dose_gy": near_max_gy(p.dose_gy, cm3[k], mass[k] / cm3[k])}
                        for k, p in enumerate(self.phases)],
-            "accumulated_max_dose_gy": float(self.accumulated.dose_gy.max()),
+            "accumulated_near_max_dose_gy": near_max_gy(
+                self.accumulated.dose_gy, ref_cm3, self.accumulated.mass_g / ref_cm3),
+            "near_max": NEAR_MAX_SAID,
             "mass_spread_rel": self.accumulated.mass_spread_rel,
             "weights": self.accumulated.weights.tolist(),
             "units": {"dose": self.unit},

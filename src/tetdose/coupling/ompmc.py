@@ -98,8 +98,8 @@ from tetdose.transport.run.job import (
     PROGRESS_DELAY_S,
     assign_materials,
     plan_media,
-    water_factors,
     warn_target_missed,
+    water_factors,
 )
 from tetdose.transport.run.settings import TransportSettings
 from tetdose.transport.sources.particles import source_particles

@@ -37,6 +37,8 @@ from typing import Any
 import numpy as np
 
 from tetdose._atomic import atomic_write_dir
+from tetdose._constants import MM3_PER_CM3
+from tetdose.core.body import NEAR_MAX_SAID, near_max_gy
 from tetdose.core.calibration import HUCalibration
 from tetdose.core.image import Image
 from tetdose.core.io import write_image, write_mesh
@@ -70,6 +72,8 @@ class VoxelDose4D:
     results: list[DoseResult]
     direct_mapping: Image  # (a) dose interpolated through the motion
     energy_mass_transfer: Image  # (b) energy and mass moved with the motion
+    direct_mapping_std: Image | None = None  # σ of (a) and (b) [Gy], see _voxel_way
+    energy_mass_transfer_std: Image | None = None
 
     @property
     def doses(self) -> list[Image]:
@@ -106,11 +110,14 @@ class Dose4D:
         return str(self.results[0].extra.get("dose_to", "medium"))
 
     def summary(self) -> dict[str, object]:
-        """Ledger, lost photons and timing per phase, the accumulated dose range, what the dose is.
+        """Ledger, lost photons, timing and the near-maximum dose in tissue (D0.1cm³,
+        :func:`tetdose.core.body.near_max_gy`) per phase, the accumulated near-maxima, and what
+        the dose is (to medium or to water).
 
         ``wall_s``: the phase's run (with dask: the whole distributed call); ``transport_s``:
         the time spent on this phase's batches (with dask: summed over its worker tasks).
         """
+        ref_cm3 = self.series.reference.volumes_mm3 / MM3_PER_CM3
         out: dict[str, object] = {
             "world": self.results[0].geometry,
             "physics": self.results[0].extra.get("physics", "kerma"),
@@ -118,11 +125,14 @@ class Dose4D:
                         "ledger": r.ledger, "lost_photons": r.lost_photons,
                         "relocations": r.relocations, "wall_s": r.wall_s,
                         "transport_s": r.extra.get("task_s", r.wall_s),
-                        "max_dose_gy": float(r.mesh_part().dose_gy.max()),
+                        "near_max_dose_gy": r.mesh_part().near_max_dose_gy(
+                            self.series.mesh(k).volumes_mm3),
                         "mesh_voxel_switches": int(r.counts_per_batch[:, 5].sum()),
                         **({"target": r.extra["target"]} if "target" in r.extra else {})}
                        for k, r in enumerate(self.results)],
-            "accumulated_max_dose_gy": float(self.accumulated.dose_gy.max()),
+            "accumulated_near_max_dose_gy": near_max_gy(
+                self.accumulated.dose_gy, ref_cm3, self.accumulated.mass_g / ref_cm3),
+            "near_max": NEAR_MAX_SAID,
             "weights": self.accumulated.weights.tolist(),
             "units": {"dose": self.results[0].record()["units"]["dose"]},
             "dose_to": self.dose_to,
@@ -133,9 +143,12 @@ class Dose4D:
             out["dose_to_water"] = self.results[0].extra["dose_to_water"]
         if self.delivery is not None:
             out["delivery"] = self.delivery
-        if self.body is not None:
-            out["body_accumulated_max_dose_gy"] = float(self.body.accumulated.array.max())
-            out["combined_accumulated_max_dose_gy"] = float(self.body.combined.array.max())
+        if self.body is not None:  # densities of phase 0's voxels (mesh and body together)
+            vox = self.results[0].combined()
+            cm3 = vox.grid.voxel_volume_mm3 / MM3_PER_CM3
+            for key, img in (("body_accumulated", self.body.accumulated),
+                             ("combined_accumulated", self.body.combined)):
+                out[f"{key}_near_max_dose_gy"] = near_max_gy(img.array, cm3, vox.mass_g / cm3)
         return out
 
 
@@ -282,12 +295,22 @@ def _body_way(series: PhaseSeries, accumulated: AccumulatedDose,
 
 def _voxel_way(series: PhaseSeries, density: list[Image],
                results: list[DoseResult]) -> VoxelDose4D:
-    doses = [r.to_images()[0] for r in results]
+    """Both voxel accumulations and their σ: each phase's voxel variance σ_p² carried the same
+    way, Σ_p w_p² σ_p² (phases independent) — exact for the direct mapping up to its trilinear
+    interpolation (an upper bound), approximate for the energy/mass transfer (the phases' masses
+    in a voxel taken equal, the sub-voxel averaging ignored: an upper bound too)."""
+    images = [r.to_images() for r in results]
+    doses, var = [d for d, _ in images], [s.array**2 for _, s in images]
     ref, pts, w = series.reference, series.points_mm, series.time_weight
     grid = density[0].grid
+    wn = np.asarray(w, dtype=np.float64) / np.sum(w)
+    scaled = [Image(len(wn) * wp**2 * v, grid) for wp, v in zip(wn, var, strict=True)]
+    ddm_var = direct_dose_mapping(ref, pts, scaled, grid)  # equal weights 1/K: Σ_p w_p² σ_p²
+    emt_var = energy_mass_transfer(ref, pts, scaled, density, grid)
     return VoxelDose4D(density, results,
                        direct_dose_mapping(ref, pts, doses, grid, weights=w),
-                       energy_mass_transfer(ref, pts, doses, density, grid, weights=w))
+                       energy_mass_transfer(ref, pts, doses, density, grid, weights=w),
+                       Image(np.sqrt(ddm_var.array), grid), Image(np.sqrt(emt_var.array), grid))
 
 
 def write_dose4d(result: Dose4D, out_dir: str | os.PathLike[str]) -> Path:
@@ -301,7 +324,7 @@ def write_dose4d(result: Dose4D, out_dir: str | os.PathLike[str]) -> Path:
             stem = f"phase_{result.series.phase_percent[k]:05.1f}"
             write_mesh(tmp / f"{stem}.vtu",
                        mark(r.to_mesh(result.series.mesh(k)), result.dose_to))
-            r.save_json(tmp / f"{stem}.json")
+            r.save_json(tmp / f"{stem}.json", result.series.mesh(k).volumes_mm3)
         acc = result.accumulated
         write_mesh(tmp / "accumulated.vtu", mark(result.series.reference.with_data(cell_data={
             "dose": acc.dose_gy, "dose_std": acc.dose_std_gy if acc.dose_std_gy is not None
@@ -325,5 +348,9 @@ def write_dose4d(result: Dose4D, out_dir: str | os.PathLike[str]) -> Path:
             write_image(vox / "accumulated_direct_mapping.nrrd", result.voxel.direct_mapping)
             write_image(vox / "accumulated_energy_mass_transfer.nrrd",
                         result.voxel.energy_mass_transfer)
+            for stem, std in (("direct_mapping", result.voxel.direct_mapping_std),
+                              ("energy_mass_transfer", result.voxel.energy_mass_transfer_std)):
+                if std is not None:  # σ beside each, for `tetdose compare`
+                    write_image(vox / f"accumulated_{stem}_std.nrrd", std)
         (tmp / "summary.json").write_text(json.dumps(result.summary(), indent=2) + "\n")
     return out

@@ -29,8 +29,9 @@ import numpy as np
 import scipy.sparse as sp
 
 from tetdose._atomic import atomic_write_file
-from tetdose._constants import G_PER_KG, J_PER_MEV
+from tetdose._constants import G_PER_KG, J_PER_MEV, MM3_PER_CM3
 from tetdose._typing import FloatArray, IntArray
+from tetdose.core.body import NEAR_MAX_SAID, near_max_gy
 from tetdose.core.image import Image, ImageGrid
 from tetdose.core.mesh import TetMesh
 from tetdose.errors import GeometryMismatchError
@@ -181,8 +182,24 @@ class DoseResult:
     def _count_keys(self) -> tuple[str, ...]:
         return COUNT_KEYS if self.counts_per_batch.shape[1] == len(COUNT_KEYS) else COUNT_KEYS_DOSE
 
-    def record(self) -> dict[str, Any]:
-        """The JSON run record: settings, ledger, counters, timing and version."""
+    def near_max_dose_gy(self, tet_volume_mm3: FloatArray | None = None) -> float:
+        """The near-maximum dose in tissue [Gy], D0.1cm³ over the cells denser than
+        :data:`~tetdose.core.body.TISSUE_FLOOR_G_CM3` (:func:`tetdose.core.body.near_max_gy`):
+        over the grid's voxels (a hybrid run's combined dose; density = mass / voxel volume),
+        or over the tets given their volumes [mm³]; NaN when neither is known."""
+        if self.grid is not None:
+            res = self.combined()
+            cm3 = self.grid.voxel_volume_mm3 / MM3_PER_CM3
+            return near_max_gy(res.dose_gy, cm3, res.mass_g / cm3)
+        if tet_volume_mm3 is None:
+            return float("nan")
+        cm3 = np.asarray(tet_volume_mm3, dtype=np.float64) / MM3_PER_CM3
+        return near_max_gy(self.dose_gy[:len(cm3)], cm3, self.mass_g[:len(cm3)] / cm3)
+
+    def record(self, tet_volume_mm3: FloatArray | None = None) -> dict[str, Any]:
+        """The JSON run record: settings, ledger, counters, timing and version; the
+        near-maximum dose in tissue (:meth:`near_max_dose_gy`, ``tet_volume_mm3`` for a mesh
+        run)."""
         return {
             "histories": self.n_histories, "batches": self.n_batches, "seed": self.seed,
             "estimator": self.estimator, "geometry": self.geometry,
@@ -192,14 +209,16 @@ class DoseResult:
             "n_tets": self.n_tets, "n_voxels": len(self.mass_g) - self.n_tets,
             "wall_s": self.wall_s, "version": self.version,
             "units": {"dose": PER_PHOTON_UNIT},
-            "max_dose_gy": float(self.dose_gy.max()), **self.extra,
+            "near_max_dose_gy": self.near_max_dose_gy(tet_volume_mm3), "near_max": NEAR_MAX_SAID,
+            **self.extra,
         }
 
-    def save_json(self, path: str | os.PathLike[str]) -> Path:
+    def save_json(self, path: str | os.PathLike[str], tet_volume_mm3: FloatArray | None = None
+                  ) -> Path:
         """Write :meth:`record` as JSON (atomic)."""
         path = Path(path)
         with atomic_write_file(path) as tmp:
-            tmp.write_text(json.dumps(self.record(), indent=2) + "\n")
+            tmp.write_text(json.dumps(self.record(tet_volume_mm3), indent=2) + "\n")
         return path
 
     def _part(self, cells: slice, geometry: str, grid: ImageGrid | None) -> DoseResult:
