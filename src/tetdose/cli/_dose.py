@@ -11,6 +11,7 @@ beside the output (``dose.json`` for ``dose.vtu``).
 from __future__ import annotations
 
 import argparse
+import warnings
 from contextlib import nullcontext
 from pathlib import Path
 from typing import Any
@@ -268,6 +269,9 @@ def run(args: argparse.Namespace) -> int:
         density = ct.with_array(cal.density(ct.array).astype(np.float64))
         labels = read_labels(args.labels) if args.labels else None
         extra.update(ct=str(args.ct), calibration=cal.name)
+        if args.ct_materials == "schneider" and labels is None and mesh is None and plan.materials:
+            warnings.warn("plan [materials] given but the CT has no region labels (--labels); "
+                          "its voxels get Schneider's HU compositions", stacklevel=2)
         plan, labels, extra["ct_materials"] = ct_materials(args.ct_materials, plan, ct, cal,
                                                            labels)
     if args.engine == "ompmc":
