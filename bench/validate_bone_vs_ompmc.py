@@ -44,7 +44,8 @@ def main() -> None:
         ok = abs(r["bone"]) <= case.tolerance
         print(f"{name:7s} {args.material} (ompmc {r['pegs']}): bone {case.score_mm[0]}–"
               f"{case.score_mm[1]} mm tetdose/ompmc − 1 = {100 * r['bone']:+.2f} ± "
-              f"{100 * r['bone_sigma']:.2f} % (criterion ±{100 * case.tolerance:.1f} %: "
+              f"{100 * r['bone_sigma']:.2f} % (σ tetdose {100 * r['bone_sigma_tetdose']:.2f} %, "
+              f"ompmc {100 * r['bone_sigma_ompmc']:.2f} %; criterion ±{100 * case.tolerance:.1f} %: "
               f"{'met' if ok else 'NOT met'}); water {case.control_mm[0]}–{case.control_mm[1]} mm "
               f"{100 * r['water']:+.2f} ± {100 * r['water_sigma']:.2f} %", flush=True)
 

@@ -90,6 +90,7 @@ def run_case(case: Case, material: str, n_tetdose: int, n_ompmc: int) -> dict[st
         (dt, st), (do, so) = mean_dose(et, m, lo, hi), mean_dose(eo, m, lo, hi)
         out[key] = dt / do - 1.0
         out[key + "_sigma"] = float(np.hypot(st / do, so * dt / do**2))
+        out[key + "_sigma_tetdose"], out[key + "_sigma_ompmc"] = st / dt, so / do
     return out
 
 
