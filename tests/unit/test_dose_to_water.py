@@ -66,3 +66,22 @@ def test_dose_to_water_needs_dose_physics():
         TransportSettings(10, 2, dose_to="ink")
     with pytest.raises(PlanError, match="physics='dose' with dose_to='water'"):
         TransportSettings(10, 2, physics="kerma", dose_to="water")
+
+
+def test_vtu_flag_and_records_say_which_dose_it_is(tmp_path):
+    from tetdose.core.io import read_mesh, write_mesh
+    from tetdose.dose.dose_to import ARRAY, mark, recorded_dose_to, require_same
+    from tetdose.errors import OptionError
+
+    mesh = box_mesh([0, 0, 0], [2, 2, 2], (1, 1, 1))
+    write_mesh(tmp_path / "w.vtu", mark(mesh.with_data(cell_data={"dose": np.ones(mesh.n_tets)}),
+                                        "water"))
+    back = read_mesh(tmp_path / "w.vtu")
+    assert np.all(back.cell_data[ARRAY] == 1)
+    assert recorded_dose_to(tmp_path / "w.vtu", back) == "water"  # no record: the VTU flag
+    (tmp_path / "w.json").write_text('{"dose_to": "medium"}')
+    assert recorded_dose_to(tmp_path / "w.vtu", back) == "medium"  # the record wins
+    assert recorded_dose_to(tmp_path / "none.nrrd") == "medium"
+    assert require_same(None, "water", "x") == "water"
+    with pytest.raises(OptionError, match="x is dose to water, not to medium"):
+        require_same("medium", "water", "x")
