@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import warnings
 from contextlib import nullcontext
 from pathlib import Path
 from typing import Any
@@ -284,6 +285,9 @@ def run(args: argparse.Namespace) -> int:
         labels = read_labels(args.labels) if args.labels else None
         extra.update(ct=str(args.ct), calibration=cal.name,
                      hu_beyond_calibration=beyond.as_dict())
+        if args.ct_materials == "schneider" and labels is None and mesh is None and plan.materials:
+            warnings.warn("plan [materials] given but the CT has no region labels (--labels); "
+                          "its voxels get Schneider's HU compositions", stacklevel=2)
         plan, labels, extra["ct_materials"] = ct_materials(args.ct_materials, plan, ct, cal,
                                                            labels)
     if args.vertex_dose and (mesh is None or args.engine == "ompmc"):
