@@ -12,7 +12,9 @@ and fraction doses (a noisier dose has a lower D95 and a higher D2).
 
 The target's D95, D2 (dose to the hottest 95 %, 2 % of its mass) and mean dose are reported per
 fraction, for the mean of the course and for both references; the spread of the mean of n
-fractions is estimated from subsets of the N fractions drawn without replacement.
+fractions is estimated from subsets of the N fractions drawn without replacement, times
+√((N − 1)/(N − n)) (the finite-population correction, Cochran, Sampling Techniques, 1977, §2.5:
+the spread of an n-fraction course of independent random starts).
 """
 
 from __future__ import annotations
@@ -101,7 +103,7 @@ class FractionCourse:
         return float(np.mean(out))
 
     def _spread(self, seed: int) -> list[dict[str, float]]:
-        """SD of the D95 and mean dose of an n-fraction mean over random subsets."""
+        """SD of the D95 and mean dose of an n-fraction mean (module doc)."""
         n_all = len(self.fractions)
         rng = np.random.default_rng(seed)
         mass = self.time_weighted.accumulated.mass_g
@@ -110,7 +112,8 @@ class FractionCourse:
         for n in sizes:
             vals = [self.metrics(self.mean_dose(rng.choice(n_all, n, replace=False)), mass)
                     for _ in range(SUBSETS if n < n_all else 1)]
-            out.append({"n": n, **{f"sd_{m}": float(np.std([v[m] for v in vals]))
+            fpc = np.sqrt((n_all - 1) / (n_all - n)) if n < n_all else 1.0
+            out.append({"n": n, **{f"sd_{m}": float(fpc * np.std([v[m] for v in vals]))
                                    for m in ("D95", "mean")}})
         return out
 
