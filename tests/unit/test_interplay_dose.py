@@ -150,3 +150,20 @@ def test_interplay_with_ompmc_on_the_phase_cts(setup):
     assert run.results[0].n_histories == 3 * 2000
     np.testing.assert_allclose(run.accumulated.dose_gy, run.results[0].dose_gy, rtol=1e-12)
     assert run.accumulated.dose_gy.max() > 0
+
+
+def test_a_structure_isocentre_is_resolved_before_the_cut(setup):
+    s, _plan, _tw, _tl = setup
+    plan = Plan.from_dict({"beam": [{"type": "linac", "spectrum": "6MV", "weight": 10.0,
+                                     "isocenter": "tumour", "arc": {
+                                         "start_deg": 0.0, "stop_deg": 90.0,
+                                         "direction": "CW"}}], "regions": {"tumour": 2}})
+    from tetdose.dose.interplay import check_interplay_plan
+    from tetdose.plan.phase_split import split_by_phase
+
+    check_interplay_plan(plan)
+    resolved = plan.resolved(s.reference)
+    tl = delivery_timeline(plan.treatment_beams).with_beams(resolved.treatment_beams)
+    d = split_by_phase(tl, np.array([0.0]), np.array([0]), 3)
+    np.testing.assert_allclose(d.beams[0][0].isocenter_mm, resolved.treatment_beams[0].isocenter_mm)
+    assert np.linalg.norm(d.beams[0][0].isocenter_mm - 20.0) < 3.0  # the tumour's centroid

@@ -160,9 +160,11 @@ def _print_course(rep: dict[str, Any], timeline: Timeline, wall: float, unit: st
                       ("course mean", "course_mean"), ("4D (time)", "time_weighted_4d"),
                       (f"static {rep['static_phase_percent']:g} %", "static_plan")):
         print(f"{name:<14}" + "".join(f"{rep[key][m]:12.4g}" for m in METRICS))
-    d95 = rep["time_weighted_4d"]["D95"]
-    spread = ", ".join(f"n={s['n']}: {100 * s['sd_D95'] / d95:.2f} %"
-                       for s in rep["spread_of_n_fraction_mean"])
-    print(f"SD of the D95 of an n-fraction mean (relative to the 4D D95): {spread}; Monte "
-          f"Carlo σ of one fraction's target mean dose {100 * rep['statistical_rel_sd_mean_dose']:.2f} %")
+    ref = rep["time_weighted_4d"]
+    for m in ("D95", "mean"):
+        spread = ", ".join(f"n={s['n']}: {100 * s[f'sd_{m}'] / ref[m]:.2f} %"
+                           for s in rep["spread_of_n_fraction_mean"])
+        print(f"SD of the {m} of an n-fraction course (relative to the 4D {m}): {spread}")
+    print(f"Monte Carlo σ of one fraction's target mean dose "
+          f"{100 * rep['statistical_rel_sd_mean_dose']:.2f} %")
     print(f"{rep['fractions']} fractions in {wall:.0f} s → {out}")

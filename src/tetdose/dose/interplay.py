@@ -65,6 +65,8 @@ def run_interplay(series: PhaseSeries, plan: Plan, settings: TransportSettings,
     :func:`~tetdose.dose.dose4d.run_dose4d` (``ct_hu``, ``voxel_engine``, ...); ``phase_ct``,
     ``dvfs`` and ``phase_density`` are given for every phase of ``series``."""
     check_interplay_plan(plan)
+    plan = plan.resolved(series.reference)  # isocenter = "structure" → its planning centroid
+    timeline = timeline.with_beams(plan.treatment_beams)
     k = series.n_phases
     delivery = split_by_phase(timeline, starts_s, phase_index, k, t0_s)
     weights = delivery.source_weights(plan)

@@ -76,6 +76,13 @@ class Timeline:
     def total_mu(self) -> float:
         return float(sum(b.mu.sum() for b in self.beams))
 
+    def with_beams(self, beams: Sequence[LinacBeam]) -> Timeline:
+        """The same times with ``beams`` (e.g. the plan's, their isocentres resolved)."""
+        if len(beams) != len(self.beams):
+            raise PlanError(f"{len(beams)} beams for a timeline of {len(self.beams)}")
+        return Timeline(tuple(BeamTimeline(b, t.times_s, t.mu)
+                              for b, t in zip(beams, self.beams, strict=True)))
+
     def record(self) -> dict[str, object]:
         """JSON-ready summary: beam-on and total time [s], MU and each beam's span."""
         return {"beam_on_s": self.beam_on_s, "delivery_s": self.end_s, "mu": self.total_mu,
