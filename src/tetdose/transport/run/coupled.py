@@ -22,7 +22,7 @@ from tetdose._typing import FloatArray
 from tetdose.transport.physics.electron_xs import ElectronTables, build_electron_tables
 from tetdose.transport.physics.xs import CrossSections
 from tetdose.transport.run._dose_batches import run_world_dose
-from tetdose.transport.run.settings import TransportSettings
+from tetdose.transport.run.settings import SPLITTING_SCHEMES, TransportSettings
 from tetdose.transport.sources.arrays import E_MAX_MEV
 
 #: Relative margin of the majorant against rounding.
@@ -95,4 +95,5 @@ def run_dose_rows(job, xs: CrossSections, settings: TransportSettings,  # noqa: 
                    ps.group_cdf, settings.seed, settings.stream, settings.n_histories,
                    settings.n_batches, b_start, b_stop, settings.energy_cutoff_mev,
                    settings.max_energy_loss_fraction, settings.photon_splitting,
+                   SPLITTING_SCHEMES.index(settings.splitting_scheme),
                    settings.range_rejection_mev, energy, ledger, counts)
