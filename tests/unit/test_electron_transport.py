@@ -353,6 +353,17 @@ def test_cli_photon_tracking_reaches_the_settings():
         assert run_settings(args).photon_tracking == tracking
 
 
+def test_cli_splitting_scheme_reaches_the_settings():
+    parser = argparse.ArgumentParser()
+    add_run_args(parser)
+    for argv, scheme in (([], "roulette"), (["--splitting-scheme", "follow"], "follow"),
+                         (["--splitting-scheme", "repeat", "--photon-splitting", "8"], "repeat")):
+        args = parser.parse_args(["--histories", "100", *argv])
+        assert run_settings(args).splitting_scheme == scheme
+    with pytest.raises(SystemExit):
+        parser.parse_args(["--histories", "100", "--splitting-scheme", "xvmc"])
+
+
 def test_photon_majorant_bounds_every_material_between_the_nodes():
     """μ̂(E) ≥ (μ/ρ)_m(E)·ρ_max,m for every material at energies between the table's nodes (as
     the kernels interpolate), within 2 % of the largest of them; a material of density 0 (none

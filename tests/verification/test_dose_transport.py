@@ -143,7 +143,7 @@ def _one_track(wg, et, e, cell, x, y, z, w, n_cells):
     stack = np.empty((8, STACK_COLUMNS))
     bcell, bcol = np.empty(256, np.intp), np.empty(256)
     sig_hat = np.zeros((1, 2, et.stopping.shape[2]))
-    electron_track(wg, et, sig_hat, 0, e, cell, x, y, z, 0.0, 0.0, w, seed_for(1, 0, 0), 0.25,
+    electron_track(wg, et, sig_hat, 0, e, cell, x, y, z, 0.0, 0.0, w, 1.0, seed_for(1, 0, 0), 0.25,
                    tally, ledger, counts, stack, 0, bcell, bcol)
     return tally, ledger
 

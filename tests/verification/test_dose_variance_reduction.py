@@ -1,11 +1,13 @@
-"""Dose-mode variance reduction is unbiased: photon splitting with electron Russian roulette and
-range rejection give the analog dose within statistics on a water / lung / bone slab, the ledger
-(with its roulette column) closes in every batch, one or two threads give the same bits; the pilot run that
-estimates a run's time runs coupled histories, so the estimate counts the electrons."""
+"""Dose-mode variance reduction is unbiased: photon splitting with electron Russian roulette,
+photon splitting that follows the electrons (XVMC's scheme), and range rejection give the analog
+dose within statistics on a water / lung / bone slab, the ledger (with its roulette column)
+closes in every batch, one or two threads give the same bits; the pilot run that estimates a
+run's time runs coupled histories, so the estimate counts the electrons."""
 
 from __future__ import annotations
 
 import warnings
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -52,24 +54,45 @@ def _closes(r) -> None:  # noqa: ANN001
     np.testing.assert_allclose(r.energy_per_batch_mev.sum(axis=1), local, rtol=1e-9)
 
 
-def test_photon_splitting_with_roulette_gives_the_analog_dose_on_a_water_lung_bone_slab():
+@lru_cache(maxsize=1)
+def _analog_slab() -> tuple[np.ndarray, np.ndarray, float]:
+    """(layer mean, σ, electron tracks per history) of the analog run on the slab."""
     rho, lab = slab_phantom()
-    runs = {}
-    for split, n in ((1, 60_000), (4, 30_000)):
-        r = simulate(rho, SLAB_PLAN, TransportSettings(n, 10, 5, electron_cutoff_mev=0.1,
-                                                       photon_splitting=split),
-                     labels=lab, progress=False)
-        _closes(r)
-        assert r.lost_photons == 0
-        runs[split] = _layer_dose(r, rho.grid)
-        if split > 1:
-            assert r.ledger["roulette_mev"] != 0.0  # the roulette ran
-            assert abs(r.ledger["roulette_mev"]) < 0.02 * r.ledger["source_mev"]
-            assert r.record()["photon_splitting"] == split
-    (m1, s1), (m4, s4) = runs[1], runs[4]
+    r = simulate(rho, SLAB_PLAN, TransportSettings(60_000, 10, 5, electron_cutoff_mev=0.1),
+                 labels=lab, progress=False)
+    _closes(r)
+    m, s = _layer_dose(r, rho.grid)
+    assert np.all(s < 0.05 * m)  # the comparisons have teeth: each layer to a few %
+    return m, s, r.record()["electron_tracks"] / 60_000
+
+
+@pytest.mark.parametrize(("scheme", "n"), [("roulette", 30_000), ("follow", 12_000),
+                                            ("repeat", 12_000)])
+def test_photon_splitting_gives_the_analog_dose_on_a_water_lung_bone_slab(scheme, n):
+    """Splitting 4 with Russian roulette for the electrons (EGSnrc), following them with weight
+    1/4 and rouletting the secondary photons (XVMC), or that with one electron track, sampled in
+    the first copy's medium, replayed for the four copies and scaled to lung and bone (XVMC's
+    history repetition): the layer doses agree with the analog run within 3σ, the ledger closes
+    in every batch with a roulette column near 0; following or replaying sets about four times
+    as many electron tracks in motion per source photon."""
+    rho, lab = slab_phantom()
+    r = simulate(rho, SLAB_PLAN, TransportSettings(n, 10, 6, electron_cutoff_mev=0.1,
+                                                   photon_splitting=4, splitting_scheme=scheme),
+                 labels=lab, progress=False)
+    _closes(r)
+    assert r.lost_photons == 0
+    assert r.ledger["roulette_mev"] != 0.0  # the roulette ran
+    assert abs(r.ledger["roulette_mev"]) < 0.02 * r.ledger["source_mev"]
+    assert r.record()["photon_splitting"] == 4 and r.record()["splitting_scheme"] == scheme
+    m1, s1, tracks1 = _analog_slab()
+    m4, s4 = _layer_dose(r, rho.grid)
     z = (m4 - m1) / np.hypot(s1, s4)
     assert np.all(np.abs(z) < 3.0), z
-    assert np.all(s1 < 0.05 * m1)  # the comparison has teeth: each layer to a few %
+    tracks = r.record()["electron_tracks"] / n
+    if scheme != "roulette":
+        assert tracks > 3.0 * tracks1, (tracks, tracks1)
+    else:
+        assert tracks < 1.5 * tracks1, (tracks, tracks1)
 
 
 def test_range_rejection_gives_the_analog_dose_on_a_water_lung_bone_slab():
@@ -117,18 +140,51 @@ def test_range_rejection_gives_the_analog_dose_in_linear_density_tets():
     assert steps[2.0] < 0.95 * steps[0.0], steps
 
 
+def test_history_repetition_gives_the_analog_dose_in_linear_density_tets():
+    """The replayed electron tracks walk linear-density tets (mass thicknesses) and are scaled
+    from water to lung: energy per 10 mm tet layer with splitting 4 and one replayed track per
+    source photon agrees with the analog run within 3σ, and the ledger closes."""
+    from test_transport import _slab_mesh_with_regions
+
+    mesh = _slab_mesh_with_regions()
+    plan = Plan((PhotonSource("parallel", (0.0, 0.0, -5.0), (0, 0, 1), energies_mev=(2.0,),
+                              field_mm=(30.0, 30.0)),), materials={1: "water", 2: "lung", 3: "lung"})
+    layer = np.minimum((mesh.centroids_mm[:, 2] // 10).astype(int), 5)
+    runs = {}
+    for scheme, split, n in (("roulette", 1, 30_000), ("repeat", 4, 10_000)):
+        r = simulate(mesh, plan, TransportSettings(n, 10, 7, electron_cutoff_mev=0.1,
+                                                   photon_splitting=split,
+                                                   splitting_scheme=scheme), progress=False)
+        _closes(r)
+        e = r.energy_per_batch_mev / r.histories_per_batch[:, None]
+        per = np.stack([e[:, layer == i].sum(axis=1) for i in range(6)], axis=1)
+        runs[scheme] = per.mean(axis=0), per.std(axis=0, ddof=1) / np.sqrt(len(per))
+    (m0, s0), (m4, s4) = runs["roulette"], runs["repeat"]
+    z = (m4 - m0) / np.hypot(s0, s4)
+    assert np.all(np.abs(z) < 3.0), z
+    assert np.all(s0 < 0.05 * m0)
+
+
 def test_splitting_one_is_the_analog_run_bit_for_bit():
-    """photon_splitting=1 draws no roulette number and weights nothing: the earlier kernel."""
+    """photon_splitting=1 draws no roulette number and weights nothing, with any scheme: the
+    earlier kernel."""
     rho, lab = slab_phantom()
-    a, b = (simulate(rho, SLAB_PLAN, TransportSettings(2000, 2, 3, **kw), labels=lab,
-                     progress=False) for kw in ({}, {"photon_splitting": 1}))
+    a, b, c, d = (simulate(rho, SLAB_PLAN, TransportSettings(2000, 2, 3, **kw), labels=lab,
+                           progress=False)
+                  for kw in ({}, {"photon_splitting": 1},
+                             {"photon_splitting": 1, "splitting_scheme": "follow"},
+                             {"photon_splitting": 1, "splitting_scheme": "repeat"}))
     np.testing.assert_array_equal(a.energy_per_batch_mev, b.energy_per_batch_mev)
+    np.testing.assert_array_equal(a.energy_per_batch_mev, c.energy_per_batch_mev)
+    np.testing.assert_array_equal(a.energy_per_batch_mev, d.energy_per_batch_mev)
     assert a.ledger["roulette_mev"] == 0.0
 
 
 def test_photon_splitting_setting_is_checked():
     with pytest.raises(PlanError, match="photon_splitting"):
         TransportSettings(100, 2, photon_splitting=0)
+    with pytest.raises(PlanError, match="splitting_scheme"):
+        TransportSettings(100, 2, splitting_scheme="xvmc")
 
 
 def test_split_dose_same_bits_with_one_or_two_threads(tmp_path):

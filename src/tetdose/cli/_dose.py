@@ -35,6 +35,7 @@ from tetdose.transport.run.settings import (
     PHOTON_TRACKING,
     PHYSICS,
     RANGE_REJECTION_MEV,
+    SPLITTING_SCHEMES,
     TARGET_STATISTICS,
 )
 
@@ -122,6 +123,12 @@ def add_run_args(parser: argparse.ArgumentParser, per: str = "") -> None:
                         metavar="N", help="dose mode: follow each source photon as N copies of "
                         "weight 1/N, Russian roulette for the electrons they set in motion "
                         f"(unbiased; default {PHOTON_SPLITTING} = none)")
+    parser.add_argument("--splitting-scheme", choices=SPLITTING_SCHEMES, default="roulette",
+                        help="dose mode, with --photon-splitting N > 1: roulette = Russian "
+                        "roulette for the split photons' electrons (EGSnrc, default); follow = "
+                        "follow them all with weight 1/N, roulette for the secondary photons "
+                        "(XVMC); repeat = that, with one electron track replayed for the N "
+                        "copies (XVMC's history repetition)")
     parser.add_argument("--range-rejection-mev", type=float_in(0.0, 20.0),
                         default=RANGE_REJECTION_MEV, metavar="MEV",
                         help="dose mode: an electron up to this energy that cannot leave its "
@@ -176,6 +183,7 @@ def run_settings(args: argparse.Namespace, **kw: Any) -> Any:  # noqa: ANN401
                              target_statistic=args.target_statistic, physics=args.physics,
                              electron_cutoff_mev=args.electron_cutoff_mev,
                              photon_splitting=args.photon_splitting,
+                             splitting_scheme=args.splitting_scheme,
                              range_rejection_mev=args.range_rejection_mev,
                              photon_tracking=args.photon_tracking, dose_to=args.dose_to,
                              quasi_random=args.quasi_random, **kw)

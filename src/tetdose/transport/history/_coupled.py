@@ -38,6 +38,17 @@ balance is the ledger column L_ROULETTE: + w·E for a killed particle, − (1 �
 (E = T, + 2mc² for a positron), so deposited + escaped + cut off + lost + roulette = source
 exactly in every history, and the roulette column averages to zero.
 
+**XVMC's splitting** (``splitting_scheme="follow"``; Kawrakow & Fippel, PMB 45:2163, 2000,
+sec. 2.3): the copies of weight w = 1/n_split are made the same way, but every electron or
+positron a copy sets in motion is followed with weight w (not rouletted), its deposits and
+δ-rays weighted w; the photons of weight w < 1 that scatter, and every photon a weighted
+electron creates (bremsstrahlung, annihilation), play Russian roulette instead: survival w,
+then weight 1, so photons never carry a weight for long and the photon shower stays as cheap
+as without splitting (:mod:`tetdose.transport.history._electron`). Ledger as above. Alone it
+multiplies the electrons by n_split (gain ≈ 1: measured, bench/bench_vr.py); with
+``"repeat"`` the copies share their first interaction and one electron track, replayed from
+each copy's site (XVMC's electron history repetition, :mod:`tetdose.transport.history._repeat`).
+
 **Range rejection** (EGSnrc's ESAVE, restricted to what cannot change a tally): an electron of
 kinetic energy T ≤ ``rr_mev`` starting a track in a cell it cannot leave deposits T there at
 once. In a voxel (density ρ constant) it cannot leave when R(T)·10 < d·ρ, d [mm] the distance to
@@ -69,13 +80,14 @@ from tetdose.transport.history._electron import (
     L_ROULETTE,
     PHOTON,
     POSITRON,
+    REPLAY,
     electron_track,
     push,
+    push_weighted,
     stop_charged,
 )
 from tetdose.transport.history._photon import (
     C_LOST,
-    C_STACK_FULL,
     ESCAPES,
     L_CUTOFF,
     L_ESCAPED,
@@ -83,6 +95,7 @@ from tetdose.transport.history._photon import (
     LOST,
     flight,
 )
+from tetdose.transport.history._repeat import repeat_electron
 from tetdose.transport.physics._electron import range_of
 from tetdose.transport.physics._photon import (
     branching_fractions,
@@ -97,36 +110,23 @@ from tetdose.transport.physics._photon_electrons import (
 )
 
 _TWO_PI = 2.0 * math.pi
+#: Splitting schemes (settings.SPLITTING_SCHEMES in order): electron roulette, follow, repeat.
+ROULETTE, FOLLOW, REPEAT = 0, 1, 2
 
 
 @kernel
-def push_weighted(stack, n_stack, sp, e, x, y, z, u, v, w, cell, wt, tally, ledger, counts):
-    """Push a particle of weight ``wt`` on the stack; on a full stack deposit wt × its energy in
-    ``cell`` (a positron with its annihilation energy) and count the overflow."""
-    if n_stack < stack.shape[0]:
-        r = stack[n_stack]
-        r[0], r[1], r[2], r[3], r[4], r[5], r[6] = e, x, y, z, u, v, w
-        r[7] = cell
-        r[8] = sp
-        r[9] = wt
-        return n_stack + 1
-    counts[C_STACK_FULL] += 1
-    if sp == PHOTON:
-        ledger[L_CUTOFF] += e * wt
-    else:
-        e += 2.0 * ELECTRON_MASS_MEV if sp == POSITRON else 0.0
-        ledger[L_E_CUTOFF] += e * wt
-    tally[cell] += e * wt
-    return n_stack
-
-
-@kernel
-def release(state, sp, t, x, y, z, u, v, w, cell, e_cut, wt, tally, ledger, counts, stack,
-            n_stack):
+def release(state, sp, t, x, y, z, u, v, w, cell, e_cut, wt, scheme, tally, ledger, counts,
+            stack, n_stack):
     """An e± of kinetic energy ``t`` set in motion at (x, y, z) by a photon of weight ``wt``:
-    above the cut-off it plays Russian roulette (if wt < 1; module docstring) and is pushed with
-    weight 1; below, wt × t stays there (a positron's annihilation photons get weight wt)."""
+    above the cut-off it is pushed with weight wt if ``scheme`` is FOLLOW (XVMC's splitting; an
+    electron as REPLAY if REPEAT), else it plays Russian roulette (if wt < 1) and is pushed with
+    weight 1 (module docstring); below, wt × t stays there (a positron's annihilation photons get
+    weight wt)."""
     if t > e_cut:
+        if scheme != ROULETTE:
+            sp_push = REPLAY if scheme == REPEAT and sp == ELECTRON else sp
+            return state, push_weighted(stack, n_stack, sp_push, t, x, y, z, u, v, w, cell, wt,
+                                        tally, ledger, counts)
         if wt < 1.0:
             e_ledger = t + (2.0 * ELECTRON_MASS_MEV if sp == POSITRON else 0.0)
             state, xi = next_uniform(state)
@@ -136,7 +136,8 @@ def release(state, sp, t, x, y, z, u, v, w, cell, e_cut, wt, tally, ledger, coun
             ledger[L_ROULETTE] -= (1.0 - wt) * e_ledger
         return state, push(stack, n_stack, sp, t, x, y, z, u, v, w, cell, tally, ledger, counts)
     if wt == 1.0:
-        return stop_charged(state, sp, t, x, y, z, cell, tally, ledger, counts, stack, n_stack)
+        return stop_charged(state, sp, t, x, y, z, cell, 1.0, tally, ledger, counts, stack,
+                            n_stack)
     tally[cell] += t * wt
     ledger[L_E_CUTOFF] += t * wt
     if sp == POSITRON:
@@ -149,8 +150,8 @@ def release(state, sp, t, x, y, z, u, v, w, cell, e_cut, wt, tally, ledger, coun
 
 
 @kernel
-def photon_interaction(xs, m, cell, e, u, v, w, state, e_cut, wt, tally, ledger, counts, stack,
-                       n_stack, x, y, z):
+def photon_interaction(xs, m, cell, e, u, v, w, state, e_cut, wt, scheme, tally, ledger, counts,
+                       stack, n_stack, x, y, z):
     """One photon interaction at (x, y, z) (module docstring): returns
     (state, alive, e, u, v, w, n_stack) of the photon."""
     p_incoherent, p_pair = branching_fractions(xs, m, e)
@@ -161,7 +162,7 @@ def photon_interaction(xs, m, cell, e, u, v, w, state, e_cut, wt, tally, ledger,
         u2, v2, w2 = rotate_direction(u, v, w, cos_theta, _TWO_PI * r_phi)
         eu, ev, ew = compton_electron_direction(e, e_out, u, v, w, u2, v2, w2)
         state, n_stack = release(state, ELECTRON, e - e_out, x, y, z, eu, ev, ew, cell, e_cut,
-                                 wt, tally, ledger, counts, stack, n_stack)
+                                 wt, scheme, tally, ledger, counts, stack, n_stack)
         return state, True, e_out, u2, v2, w2, n_stack
     state, r_phi = next_uniform(state)
     phi = _TWO_PI * r_phi
@@ -173,25 +174,29 @@ def photon_interaction(xs, m, cell, e, u, v, w, state, e_cut, wt, tally, ledger,
         state, c_plus = sample_leading_term_cos(t_total - t_minus, state)
         eu, ev, ew = rotate_direction(u, v, w, c_minus, phi)
         state, n_stack = release(state, ELECTRON, t_minus, x, y, z, eu, ev, ew, cell, e_cut,
-                                 wt, tally, ledger, counts, stack, n_stack)
+                                 wt, scheme, tally, ledger, counts, stack, n_stack)
         eu, ev, ew = rotate_direction(u, v, w, c_plus, phi + math.pi)
         state, n_stack = release(state, POSITRON, t_total - t_minus, x, y, z, eu, ev, ew, cell,
-                                 e_cut, wt, tally, ledger, counts, stack, n_stack)
+                                 e_cut, wt, scheme, tally, ledger, counts, stack, n_stack)
         return state, False, 0.0, u, v, w, n_stack
     state, cos_e = sample_sauter_cos(e, state)
     eu, ev, ew = rotate_direction(u, v, w, cos_e, phi)
-    state, n_stack = release(state, ELECTRON, e, x, y, z, eu, ev, ew, cell, e_cut, wt, tally,
-                             ledger, counts, stack, n_stack)
+    state, n_stack = release(state, ELECTRON, e, x, y, z, eu, ev, ew, cell, e_cut, wt, scheme,
+                             tally, ledger, counts, stack, n_stack)
     return state, False, 0.0, u, v, w, n_stack
 
 
 @kernel
-def photon_track(wg, xs, ln_mu_hat, e, cell, x, y, z, u, v, w, state, p_cut, e_cut, wt, tally,
-                 ledger, counts, stack, n_stack):
+def photon_track(wg, xs, ln_mu_hat, e, cell, x, y, z, u, v, w, state, kin, p_cut, e_cut, wt,
+                 scheme, tally, ledger, counts, stack, n_stack):
     """Follow one photon of weight ``wt`` to its absorption, escape or cut-off; secondaries go on
-    the stack. Flights through the mesh are Woodcock-tracked with the majorant table
-    ``ln_mu_hat`` (:mod:`tetdose.transport.history._delta`), or walked tet by tet when it is
-    empty. Returns (state, n_stack)."""
+    the stack; with ``scheme`` FOLLOW or REPEAT (XVMC's splitting) a photon of weight < 1 plays
+    Russian roulette once it has scattered (survival wt, then weight 1); with REPEAT its first
+    interaction draws from the stream ``kin`` shared by the copies (:mod:`._repeat`; later
+    ones FOLLOW). Flights through the mesh are
+    Woodcock-tracked with the majorant table ``ln_mu_hat``
+    (:mod:`tetdose.transport.history._delta`), or walked tet by tet when it is empty.
+    Returns (state, n_stack)."""
     delta = ln_mu_hat.shape[0] > 0
     while True:
         if e < p_cut:
@@ -214,11 +219,24 @@ def photon_track(wg, xs, ln_mu_hat, e, cell, x, y, z, u, v, w, state, p_cut, e_c
             counts[C_LOST] += 1
             return state, n_stack
         cell = cell2
-        state, alive, e, u, v, w, n_stack = photon_interaction(
-            xs, cell_material(wg, cell), cell, e, u, v, w, state, e_cut, wt, tally, ledger,
-            counts, stack, n_stack, x, y, z)
+        if scheme == REPEAT:
+            _, alive, e, u, v, w, n_stack = photon_interaction(
+                xs, cell_material(wg, cell), cell, e, u, v, w, kin, e_cut, wt, scheme, tally,
+                ledger, counts, stack, n_stack, x, y, z)
+            scheme = FOLLOW
+        else:
+            state, alive, e, u, v, w, n_stack = photon_interaction(
+                xs, cell_material(wg, cell), cell, e, u, v, w, state, e_cut, wt, scheme, tally,
+                ledger, counts, stack, n_stack, x, y, z)
         if not alive:
             return state, n_stack
+        if scheme != ROULETTE and wt < 1.0:
+            state, xi = next_uniform(state)
+            if xi >= wt:
+                ledger[L_ROULETTE] += wt * e
+                return state, n_stack
+            ledger[L_ROULETTE] -= (1.0 - wt) * e
+            wt = 1.0
 
 
 @kernel
@@ -250,32 +268,42 @@ def wall_column(wg, cell, x, y, z):
 
 
 @kernel
-def coupled_history(wg, xs, ln_mu_hat, et, sig_hat, sp, e, cell, x, y, z, u, v, w, state,
-                    p_cut, f_loss, wt, rr_mev, tally, ledger, counts, stack, bcell, bcol):
+def coupled_history(wg, xs, ln_mu_hat, et, sig_hat, sp, e, cell, x, y, z, u, v, w, state, kin,
+                    p_cut, f_loss, wt, scheme, rr_mev, tally, ledger, counts, stack, bcell, bcol,
+                    trk, key):
     """Follow one source particle (species ``sp``, energy [MeV], already in global ``cell``,
-    statistical weight ``wt``: 1, or 1/n_split for a split photon) and every secondary to the end;
+    statistical weight ``wt``: 1, or 1/n_split for a split photon, whose electrons ``scheme``
+    rouletted, followed with weight wt, or replayed from the track buffer ``trk``/``key``
+    (:mod:`._repeat`; ``kin`` the copies' shared stream)) and every secondary to the end;
     electrons of at most ``rr_mev`` [MeV] are range-rejected (module docstring; 0: never);
     photons are Woodcock-tracked through the mesh with the majorant ``ln_mu_hat`` (empty: they
     walk it). Returns the RNG state."""
     n_stack = 0
+    source = True
     while True:
         if sp == PHOTON:
             state, n_stack = photon_track(wg, xs, ln_mu_hat, e, cell, x, y, z, u, v, w, state,
-                                          p_cut, et.cutoff_mev, wt, tally, ledger, counts, stack,
-                                          n_stack)
-        elif (sp == ELECTRON and e <= rr_mev
-              and range_of(et, cell_material(wg, cell), sp, e) * MM_PER_CM
+                                          kin, p_cut, et.cutoff_mev, wt,
+                                          scheme if source else min(scheme, FOLLOW), tally,
+                                          ledger, counts, stack, n_stack)
+        elif ((sp == ELECTRON or sp == REPLAY) and e <= rr_mev
+              and range_of(et, cell_material(wg, cell), ELECTRON, e) * MM_PER_CM
               < wall_column(wg, cell, x, y, z)):
-            tally[cell] += e  # range rejection: the track cannot leave this voxel
-            ledger[L_E_CUTOFF] += e
+            tally[cell] += e * wt  # range rejection: the track cannot leave this voxel
+            ledger[L_E_CUTOFF] += e * wt
             counts[C_E_TRACKS] += 1
+        elif sp == REPLAY:
+            state, n_stack = repeat_electron(wg, et, sig_hat, e, cell, x, y, z, u, v, w, wt,
+                                             state, f_loss, tally, ledger, counts, stack, n_stack,
+                                             bcell, bcol, trk, key)
         else:
-            state, n_stack = electron_track(wg, et, sig_hat, sp, e, cell, x, y, z, u, v, w, state,
-                                            f_loss, tally, ledger, counts, stack, n_stack, bcell,
-                                            bcol)
+            state, n_stack = electron_track(wg, et, sig_hat, sp, e, cell, x, y, z, u, v, w, wt,
+                                            state, f_loss, tally, ledger, counts, stack, n_stack,
+                                            bcell, bcol)
         if n_stack == 0:
             return state
         n_stack -= 1
         r = stack[n_stack]
         e, x, y, z, u, v, w = r[0], r[1], r[2], r[3], r[4], r[5], r[6]
         cell, sp, wt = int(r[7]), int(r[8]), r[9]
+        source = False

@@ -42,6 +42,14 @@ charged particles it killed minus the energy it gave the survivors; zero on aver
 :mod:`tetdose.transport.history._coupled`). A positron's energy in the ledger is T + 2mc² (its
 kinetic energy and the annihilation energy it releases: in pair production E = T₋ + (T₊ + 2mc²));
 its annihilation photons then carry the 2mc² on.
+
+**Weighted tracks** (photon splitting that follows the electrons,
+:mod:`tetdose.transport.history._coupled`): a track of statistical weight w < 1 deposits w times
+every energy loss and pushes its δ-rays with weight w; the photons it creates (bremsstrahlung,
+annihilation in flight and at rest) play Russian roulette — each survives with probability w and
+then carries weight 1, else it is killed (ledger L_ROULETTE: + w·k killed, − (1 − w)·k
+survivor). E[weight × energy] is the analog one for every particle, so every tally is unbiased.
+A track of weight 1 draws no roulette number: the analog track bit for bit.
 """
 
 import math
@@ -70,8 +78,9 @@ from tetdose.transport.physics._electron import (
 )
 from tetdose.transport.physics._photon import isotropic_direction, rotate_direction
 
-#: Species codes (the tables' index for e∓; photons on the same stack).
-ELECTRON, POSITRON, PHOTON = 0, 1, 2
+#: Species codes (the tables' index for e∓; photons on the same stack; an electron whose track
+#: is replayed, :mod:`._repeat`).
+ELECTRON, POSITRON, PHOTON, REPLAY = 0, 1, 2, 3
 #: Electron rest energy [MeV] (CODATA 2018).
 ELECTRON_MASS_MEV = 0.51099895
 #: Dose-mode ledger columns after the photon ones, and the counters after the photon ones.
@@ -111,24 +120,60 @@ def push(stack, n_stack, species, e, x, y, z, u, v, w, cell, tally, ledger, coun
 
 
 @kernel
-def annihilate_at_rest(state, stack, n_stack, x, y, z, cell, tally, ledger, counts):
-    """Two photons of mc² back to back in an isotropic direction, pushed on the stack."""
-    state, u, v, w = isotropic_direction(state)
-    n_stack = push(stack, n_stack, PHOTON, ELECTRON_MASS_MEV, x, y, z, u, v, w, cell, tally,
-                   ledger, counts)
-    n_stack = push(stack, n_stack, PHOTON, ELECTRON_MASS_MEV, x, y, z, -u, -v, -w, cell, tally,
-                   ledger, counts)
-    return state, n_stack
+def push_weighted(stack, n_stack, sp, e, x, y, z, u, v, w, cell, wt, tally, ledger, counts):
+    """Push a particle of weight ``wt`` on the stack; on a full stack deposit wt × its energy in
+    ``cell`` (a positron with its annihilation energy) and count the overflow."""
+    if n_stack < stack.shape[0]:
+        r = stack[n_stack]
+        r[0], r[1], r[2], r[3], r[4], r[5], r[6] = e, x, y, z, u, v, w
+        r[7] = cell
+        r[8] = sp
+        r[9] = wt
+        return n_stack + 1
+    counts[C_STACK_FULL] += 1
+    if sp == PHOTON:
+        ledger[L_CUTOFF] += e * wt
+    else:
+        e += 2.0 * ELECTRON_MASS_MEV if sp == POSITRON else 0.0
+        ledger[L_E_CUTOFF] += e * wt
+    tally[cell] += e * wt
+    return n_stack
 
 
 @kernel
-def stop_charged(state, sp, e, x, y, z, cell, tally, ledger, counts, stack, n_stack):
-    """An e± below the cut-off: its kinetic energy stays in ``cell``; a positron annihilates."""
-    tally[cell] += e
-    ledger[L_E_CUTOFF] += e
+def roulette_photon(state, k, x, y, z, u, v, w, cell, wt, tally, ledger, counts, stack,
+                    n_stack):
+    """A photon of energy k [MeV] created by a particle of weight ``wt``: pushed with weight 1,
+    after Russian roulette (survival wt) if wt < 1 (module docstring)."""
+    if wt < 1.0:
+        state, xi = next_uniform(state)
+        if xi >= wt:
+            ledger[L_ROULETTE] += wt * k
+            return state, n_stack
+        ledger[L_ROULETTE] -= (1.0 - wt) * k
+    return state, push(stack, n_stack, PHOTON, k, x, y, z, u, v, w, cell, tally, ledger, counts)
+
+
+@kernel
+def annihilate_at_rest(state, stack, n_stack, x, y, z, cell, wt, tally, ledger, counts):
+    """Two photons of mc² back to back in an isotropic direction, pushed on the stack (after
+    roulette if the positron's weight ``wt`` < 1)."""
+    state, u, v, w = isotropic_direction(state)
+    state, n_stack = roulette_photon(state, ELECTRON_MASS_MEV, x, y, z, u, v, w, cell, wt, tally,
+                                     ledger, counts, stack, n_stack)
+    return roulette_photon(state, ELECTRON_MASS_MEV, x, y, z, -u, -v, -w, cell, wt, tally,
+                           ledger, counts, stack, n_stack)
+
+
+@kernel
+def stop_charged(state, sp, e, x, y, z, cell, wt, tally, ledger, counts, stack, n_stack):
+    """An e± of weight ``wt`` below the cut-off: wt × its kinetic energy stays in ``cell``; a
+    positron annihilates."""
+    tally[cell] += e * wt
+    ledger[L_E_CUTOFF] += e * wt
     if sp == POSITRON:
-        state, n_stack = annihilate_at_rest(state, stack, n_stack, x, y, z, cell, tally, ledger,
-                                            counts)
+        state, n_stack = annihilate_at_rest(state, stack, n_stack, x, y, z, cell, wt, tally,
+                                            ledger, counts)
     return state, n_stack
 
 
@@ -155,10 +200,10 @@ def sigma_majorant(sig_hat, et, m, sp, e):
 
 
 @kernel
-def hard_event(et, m, sp, e, s_hat, x, y, z, u, v, w, cell, state, tally, ledger, counts,
+def hard_event(et, m, sp, e, s_hat, x, y, z, u, v, w, cell, wt, state, tally, ledger, counts,
                stack, n_stack):
-    """Real or fictitious hard event at the end of a step (see module): returns
-    (state, alive, e, u, v, w, n_stack) of the primary."""
+    """Real or fictitious hard event at the end of a step of a track of weight ``wt`` (see
+    module): returns (state, alive, e, u, v, w, n_stack) of the primary."""
     s_delta, s_brems, s_annih = hard_cross_sections(et, m, sp, e)
     state, xi = next_uniform(state)
     r = xi * s_hat
@@ -172,29 +217,32 @@ def hard_event(et, m, sp, e, s_hat, x, y, z, u, v, w, cell, state, tally, ledger
         else:
             state, t, cos_p, cos_d = sample_bhabha(e, et.cutoff_mev, state)
         du, dv, dw = rotate_direction(u, v, w, cos_d, phi + math.pi)
-        n_stack = push(stack, n_stack, ELECTRON, t, x, y, z, du, dv, dw, cell, tally, ledger,
-                       counts)
+        n_stack = push_weighted(stack, n_stack, ELECTRON, t, x, y, z, du, dv, dw, cell, wt,
+                                tally, ledger, counts)
         u, v, w = rotate_direction(u, v, w, cos_p, phi)
         return state, True, e - t, u, v, w, n_stack
     if r < s_delta + s_brems:
         state, k, cos_k = sample_brems(et, m, sp, e, state)
         ku, kv, kw = rotate_direction(u, v, w, cos_k, phi)
-        n_stack = push(stack, n_stack, PHOTON, k, x, y, z, ku, kv, kw, cell, tally, ledger,
-                       counts)
+        state, n_stack = roulette_photon(state, k, x, y, z, ku, kv, kw, cell, wt, tally, ledger,
+                                         counts, stack, n_stack)
         return state, True, e - k, u, v, w, n_stack
     state, k1, c1, k2, c2 = sample_annihilation_in_flight(e, state)
     ku, kv, kw = rotate_direction(u, v, w, c1, phi)
-    n_stack = push(stack, n_stack, PHOTON, k1, x, y, z, ku, kv, kw, cell, tally, ledger, counts)
+    state, n_stack = roulette_photon(state, k1, x, y, z, ku, kv, kw, cell, wt, tally, ledger,
+                                     counts, stack, n_stack)
     ku, kv, kw = rotate_direction(u, v, w, c2, phi + math.pi)
-    n_stack = push(stack, n_stack, PHOTON, k2, x, y, z, ku, kv, kw, cell, tally, ledger, counts)
+    state, n_stack = roulette_photon(state, k2, x, y, z, ku, kv, kw, cell, wt, tally, ledger,
+                                     counts, stack, n_stack)
     return state, False, 0.0, u, v, w, n_stack
 
 
 @kernel
-def electron_track(wg, et, sig_hat, sp, e, cell, x, y, z, u, v, w, state, f_loss, tally, ledger,
-                   counts, stack, n_stack, bcell, bcol):
-    """Follow one e⁻ (sp = 0) or e⁺ (sp = 1) of kinetic energy ``e`` [MeV] from global ``cell``
-    to its end (module docstring); its secondaries go on the stack. Returns (state, n_stack)."""
+def electron_track(wg, et, sig_hat, sp, e, cell, x, y, z, u, v, w, wt, state, f_loss, tally,
+                   ledger, counts, stack, n_stack, bcell, bcol):
+    """Follow one e⁻ (sp = 0) or e⁺ (sp = 1) of kinetic energy ``e`` [MeV] and statistical
+    weight ``wt`` from global ``cell`` to its end (module docstring); its secondaries go on the
+    stack. Returns (state, n_stack)."""
     e_cut = et.cutoff_mev
     rest = 2.0 * ELECTRON_MASS_MEV if sp == POSITRON else 0.0
     counts[C_E_TRACKS] += 1
@@ -202,7 +250,7 @@ def electron_track(wg, et, sig_hat, sp, e, cell, x, y, z, u, v, w, state, f_loss
     idle = 0
     while True:
         if e <= e_cut:
-            return stop_charged(state, sp, e, x, y, z, cell, tally, ledger, counts, stack,
+            return stop_charged(state, sp, e, x, y, z, cell, wt, tally, ledger, counts, stack,
                                 n_stack)
         m = cell_material(wg, cell)
         r0 = range_of(et, m, sp, e)
@@ -238,23 +286,23 @@ def electron_track(wg, et, sig_hat, sp, e, cell, x, y, z, u, v, w, state, f_loss
         else:
             e_end = e
         e_end = min(max(e_end, 0.0), e)
-        deposit_step(e - e_end, bcell, bcol, nb, col_done, tally, cell)
-        ledger[L_E_DEPOSITED] += e - e_end
+        deposit_step((e - e_end) * wt, bcell, bcol, nb, col_done, tally, cell)
+        ledger[L_E_DEPOSITED] += (e - e_end) * wt
         counts[C_E_STEPS] += 1
         e = e_end
         idle = idle + 1 if col_done <= 0.0 else 0
         if out == SEG_ESCAPED:
-            ledger[L_E_ESCAPED] += e + rest
+            ledger[L_E_ESCAPED] += (e + rest) * wt
             return state, n_stack
         if out == SEG_LOST or idle > MAX_IDLE_STEPS:
-            ledger[L_LOST] += e + rest
+            ledger[L_LOST] += (e + rest) * wt
             counts[C_LOST] += 1
             return state, n_stack
         cell, entry = cell2, entry2
         if complete and hard and e > e_cut:
             state, alive, e, u2, v2, w2, n_stack = hard_event(
-                et, m, sp, e, s_hat, x, y, z, u, v, w, cell, state, tally, ledger, counts, stack,
-                n_stack)
+                et, m, sp, e, s_hat, x, y, z, u, v, w, cell, wt, state, tally, ledger, counts,
+                stack, n_stack)
             if not alive:
                 return state, n_stack
             if u2 != u or v2 != v or w2 != w:

@@ -8,7 +8,8 @@ cumulative probabilities ``group_cdf``: photon beams, electron beams, positron b
 :class:`~tetdose.transport.sources._sample.SourceArrays`) and volume sources
 (:class:`~tetdose.transport.sources._volume.VolumeArrays`, born inside the world's cells).
 A source photon is followed as ``n_split`` copies of weight 1/n_split, one after the other on the
-history's stream (photon splitting, :mod:`tetdose.transport.history._coupled`).
+history's stream (photon splitting, :mod:`tetdose.transport.history._coupled`; ``follow``: their
+electrons are followed with that weight, else rouletted).
 """
 
 import numpy as np
@@ -25,6 +26,7 @@ from tetdose.transport.history._electron import (
     STACK_COLUMNS,
 )
 from tetdose.transport.history._photon import C_MISSED, C_RELOCATIONS, L_ESCAPED, L_SOURCE
+from tetdose.transport.history._repeat import KEY_SIZE, TRACK_COLUMNS, TRACK_ROWS
 from tetdose.transport.sources._sample import sample_source
 from tetdose.transport.sources._volume import sample_volume
 
@@ -61,8 +63,8 @@ def _sample_group(wg, src_g, src_e, src_p, vol, group_cdf, state, q):
 @njit(cache=True, parallel=True)
 def run_world_dose(tet, vox, tri_lo, tri_n, tri_start, tri_items, xs, ln_mu_hat, et, sig_hat,
                    src_g, src_e, src_p, vol, group_cdf, seed, stream, n_hist, n_batches, b_start,
-                   b_stop, o_from, o_to, qmc, photon_cutoff, f_loss, n_split, rr_mev, energy,
-                   ledger, counts):
+                   b_stop, o_from, o_to, qmc, photon_cutoff, f_loss, n_split, scheme, rr_mev,
+                   energy, ledger, counts):
     """Run histories ``o_from … o_to−1`` of batches ``b_start … b_stop−1`` (as
     :func:`~._batches.run_world`): batch b adds to row
     ``b − b_start`` of energy [MeV per cell], ledger (:data:`N_LEDGER_DOSE` columns) and counts
@@ -70,7 +72,9 @@ def run_world_dose(tet, vox, tri_lo, tri_n, tri_start, tri_items, xs, ln_mu_hat,
     through the mesh (empty: they walk it), ``et`` electron tables, ``sig_hat`` their
     hard-event majorant,
     ``photon_cutoff`` [MeV], ``f_loss`` the largest energy-loss fraction per electron step,
-    ``n_split`` the copies of each source photon (1: no splitting), ``rr_mev`` the range
+    ``n_split`` the copies of each source photon (1: no splitting), ``scheme`` what becomes of
+    their electrons (0 roulette, 1 followed with weight 1/n_split, 2 one track replayed for
+    every copy, :mod:`tetdose.transport.history._repeat`), ``rr_mev`` the range
     rejection's largest electron energy [MeV] (0: off), ``qmc`` the quasi-random source points
     (as :func:`~._batches.run_world`).
     """
@@ -79,6 +83,8 @@ def run_world_dose(tet, vox, tri_lo, tri_n, tri_start, tri_items, xs, ln_mu_hat,
         stack = np.empty((STACK_DEPTH, STACK_COLUMNS))
         bcell = np.empty(STEP_CELLS, dtype=np.intp)
         bcol = np.empty(STEP_CELLS)
+        trk = np.empty((TRACK_ROWS, TRACK_COLUMNS))
+        key = np.zeros(KEY_SIZE)
         led = ledger[b - b_start].copy()
         cnt = counts[b - b_start].copy()
         tally = energy[b - b_start]
@@ -97,9 +103,15 @@ def run_world_dose(tet, vox, tri_lo, tri_n, tri_start, tri_items, xs, ln_mu_hat,
                 continue
             copies = n_split if sp == PHOTON else 1
             wt = 1.0 / copies
+            kin = state
+            sch = scheme if copies > 1 else min(scheme, 1)
+            if sch == 2:  # the copies' shared stream for their first interaction
+                state, xk = next_uniform(state)
+                kin = seed_for(int(xk * 9007199254740992.0), stream, h)
+                key[0] = -1.0
             for _ in range(copies):
                 state = coupled_history(wg, xs, ln_mu_hat, et, sig_hat, sp, e, cell, x, y, z,
-                                        u, v, w, state, photon_cutoff, f_loss, wt, rr_mev, tally,
-                                        led, cnt, stack, bcell, bcol)
+                                        u, v, w, state, kin, photon_cutoff, f_loss, wt, sch,
+                                        rr_mev, tally, led, cnt, stack, bcell, bcol, trk, key)
         ledger[b - b_start, :] = led
         counts[b - b_start, :] = cnt

@@ -23,7 +23,7 @@ from tetdose._typing import FloatArray
 from tetdose.transport.physics.electron_xs import ElectronTables, build_electron_tables
 from tetdose.transport.physics.xs import CrossSections
 from tetdose.transport.run._dose_batches import run_world_dose
-from tetdose.transport.run.settings import TransportSettings
+from tetdose.transport.run.settings import SPLITTING_SCHEMES, TransportSettings
 from tetdose.transport.sources.arrays import E_MAX_MEV
 from tetdose.transport.sources.quasi import history_points
 
@@ -103,12 +103,13 @@ def dose_rows_call(job, xs: CrossSections, settings: TransportSettings,  # noqa:
     ln_mu_hat = (photon_majorant(xs, job.geom.tet.rho_max)
                  if settings.photon_tracking == "woodcock" and job.n_tets > 0 else np.zeros(0))
     qmc = qmc_rows(settings, b_start, b_stop)
+    scheme = SPLITTING_SCHEMES.index(settings.splitting_scheme)
 
     def call(o_from: int, o_to: int) -> None:
         run_world_dose(*job.geom, xs, ln_mu_hat, et, sig_hat, job.src, ps.electron, ps.positron,
                        ps.volume, ps.group_cdf, settings.seed, settings.stream,
                        settings.n_histories, settings.n_batches, b_start, b_stop, o_from, o_to,
                        qmc, settings.energy_cutoff_mev, settings.max_energy_loss_fraction,
-                       settings.photon_splitting, settings.range_rejection_mev, energy, ledger,
-                       counts)
+                       settings.photon_splitting, scheme, settings.range_rejection_mev, energy,
+                       ledger, counts)
     return call

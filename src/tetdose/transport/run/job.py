@@ -371,6 +371,7 @@ def physics_record(settings: TransportSettings) -> dict[str, object]:
         rec.update(electron_cutoff_mev=settings.electron_cutoff_mev,
                    max_energy_loss_fraction=settings.max_energy_loss_fraction,
                    photon_splitting=settings.photon_splitting,
+                   splitting_scheme=settings.splitting_scheme,
                    range_rejection_mev=settings.range_rejection_mev,
                    photon_tracking=settings.photon_tracking)
     rec["dose_to"] = settings.dose_to

@@ -9,7 +9,12 @@ the bremsstrahlung production threshold k_c), ``electron_cutoff_mev`` for e± (a
 production threshold Δ); ``max_energy_loss_fraction`` is the largest fraction of its energy an
 electron may lose in one step (EGSnrc's ESTEPE). ``photon_splitting`` n follows every source
 photon as n copies of weight 1/n and plays Russian roulette with the electrons they set in motion
-(unbiased; :mod:`tetdose.transport.history._coupled`; dose mode only). ``range_rejection_mev``
+(unbiased; :mod:`tetdose.transport.history._coupled`; dose mode only);
+``splitting_scheme="follow"`` follows those electrons with weight 1/n instead and plays the
+roulette with the secondary photons (XVMC's scheme); ``"repeat"`` does so too, but the copies
+share their first interaction and one electron track, sampled once and replayed from each
+copy's site, scaled to the local medium (XVMC's electron history repetition;
+:mod:`tetdose.transport.history._repeat`). ``range_rejection_mev``
 E: an electron of at most E starting in a voxel or tet it cannot leave deposits its energy there
 at once (EGSnrc's ESAVE; only the hard bremsstrahlung it would have radiated stays too; 0: off).
 The estimator is ``"track_length"`` (kerma default) or ``"analog"``; dose mode scores the analog
@@ -45,6 +50,11 @@ MAX_ENERGY_LOSS_FRACTION = 0.25
 DOSE_TO = ("medium", "water")
 #: Default photon splitting of dose mode (copies of each source photon).
 PHOTON_SPLITTING = 1
+#: What splitting does with the electrons of split photons: Russian roulette (survivors weight
+#: 1; EGSnrc/ompMC), follow them all with weight 1/n (secondary photons rouletted; XVMC), or
+#: that with one electron track replayed for every copy (XVMC's history repetition). The order
+#: is the kernels' code (tetdose.transport.history._coupled).
+SPLITTING_SCHEMES = ("roulette", "follow", "repeat")
 #: Default largest electron energy of range rejection [MeV] (0: off).
 RANGE_REJECTION_MEV = 1.0
 #: Largest tally (n_batches × n_cells × 8 bytes) accepted by default.
@@ -76,6 +86,9 @@ class TransportSettings:
     max_energy_loss_fraction: float = MAX_ENERGY_LOSS_FRACTION
     #: Copies of each source photon (weight 1/n each, electron Russian roulette); 1: none.
     photon_splitting: int = PHOTON_SPLITTING
+    #: Electrons of split photons: "roulette", "follow" (weight 1/n) or "repeat" (one replayed
+    #: track, weight 1/n).
+    splitting_scheme: str = "roulette"
     #: Range rejection below this electron energy [MeV] in cells it cannot leave; 0: off.
     range_rejection_mev: float = RANGE_REJECTION_MEV
     #: Dose mode's photon flights through the mesh: "woodcock" (delta tracking) or "walk".
@@ -127,6 +140,9 @@ class TransportSettings:
         if self.dose_to == "water" and self.physics != "dose":
             raise PlanError("dose to water converts absorbed dose by stopping-power ratios; "
                             "use physics='dose' with dose_to='water' (kerma is in the medium)")
+        if self.splitting_scheme not in SPLITTING_SCHEMES:
+            raise PlanError(f"splitting_scheme {self.splitting_scheme!r} is unknown; use one of "
+                            f"{SPLITTING_SCHEMES}")
         if not 0.0 <= self.range_rejection_mev <= 20.0:
             raise PlanError(f"range_rejection_mev must lie in [0, 20] MeV (0 = off), got "
                             f"{self.range_rejection_mev}")
