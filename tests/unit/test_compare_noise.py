@@ -162,6 +162,11 @@ def test_voxel_accumulations_carry_the_phases_sigma():
     assert v.energy_mass_transfer_std.array.ravel() == pytest.approx(expected, rel=1e-9)
     dose = sum(wp * r.dose_gy for wp, r in zip(w, results, strict=True))
     assert v.energy_mass_transfer.array.ravel() == pytest.approx(dose, rel=1e-9)
+    from tetdose.dose.absolute import _scaled_images  # a prescription scales σ with the dose
+
+    scaled = _scaled_images(v, 2.0)
+    for name in ("energy_mass_transfer", "energy_mass_transfer_std", "direct_mapping_std"):
+        assert getattr(scaled, name).array == pytest.approx(2.0 * getattr(v, name).array)
 
 
 def test_same_kind_pairs_images_and_meshes(case, tmp_path, capsys):

@@ -111,10 +111,12 @@ def test_demo_tells_physics_from_noise(demo):
                           "accumulated: direct mapping vs mesh"}
     for rows in pairs.values():
         row = rows["compared region"]
-        for key in ("mean_rel_diff", "mean_rel_diff_sigma", "systematic_rel_diff",
-                    "systematic_fraction"):
-            assert row[key] is not None and abs(row[key]) <= 1.0, key
-        assert row["mean_rel_diff_sigma"] > 0 and row["systematic_model"] in ("none", "all", "part")
+        for key in ("mean_rel_diff", "mean_rel_diff_sigma"):
+            assert abs(row[key]) <= 1.0, key
+        assert row["mean_rel_diff_sigma"] > 0 and "systematic_fraction" in row
+        # --quick: 2·10⁴ histories leave 30–50 % per voxel, too noisy for the mixture (said so)
+        assert row["systematic_model"] in ("none", "all", "part") or "noise too high" in row[
+            "systematic_model"]
     g = s["gamma"]["static phase: voxel vs mesh 3%/3mm global"]
     assert 0.0 < g["expected_pass_rate_percent"] <= 100.0
     assert s["dvh"]["tumour"]["mesh"]["sigma"]["D95"] > 0

@@ -161,12 +161,12 @@ def _scaled(result: DoseResult, scale: float, rec: dict[str, Any]) -> DoseResult
 
 
 #: Dose images of the 4D results (voxel way, hybrid body part) that a prescription scales.
-_DOSE_IMAGES = ("direct_mapping", "energy_mass_transfer", "accumulated", "accumulated_std",
-                "combined")
+_DOSE_IMAGES = ("direct_mapping", "energy_mass_transfer", "direct_mapping_std",
+                "energy_mass_transfer_std", "accumulated", "accumulated_std", "combined")
 
 
 def _scaled_images(obj: Any, s: float) -> Any:  # noqa: ANN401
     """``obj`` (a dataclass) with each dose image of :data:`_DOSE_IMAGES` it has times ``s``."""
     changes = {k: getattr(obj, k).with_array(getattr(obj, k).array * s) for k in _DOSE_IMAGES
-               if hasattr(obj, k)}
+               if getattr(obj, k, None) is not None}
     return replace(obj, **changes)
