@@ -92,7 +92,8 @@ class FractionCourse:
 
     def _noise(self) -> float:
         """Relative σ (Monte Carlo) of the target's mean dose in one fraction, the mean over
-        fractions (independent tets: σ² = Σ m² σ_k² / (Σ m)²)."""
+        fractions, as if tets were independent (σ² = Σ m² σ_k² / (Σ m)²): a lower bound, since
+        one photon doses many tets (README: about a third of the true σ on the lung CT)."""
         t, out = self.target, []
         for f in self.fractions:
             a = f.accumulated
