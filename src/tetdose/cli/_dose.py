@@ -11,7 +11,6 @@ beside the output (``dose.json`` for ``dose.vtu``).
 from __future__ import annotations
 
 import argparse
-import json
 import warnings
 from contextlib import nullcontext
 from pathlib import Path
@@ -330,7 +329,8 @@ def run(args: argparse.Namespace) -> int:
     path = result.save_json(record_path(args.output),
                             None if mesh is None else mesh.volumes_mm3)
     if not args.quiet:
-        print(summary_line(result, world.kind, outputs, path))
+        print(summary_line(result, world.kind, outputs, path,
+                           None if mesh is None else mesh.volumes_mm3))
         if "target" in result.extra:
             print(target_line([result.extra["target"]]))
     return 0
@@ -350,6 +350,8 @@ def ct_materials(rule: str, plan: Any, ct: Any, cal: Any, labels: Any  # noqa: A
     plan = replace(plan, materials={**plan.materials, **names},
                    compositions={**plan.compositions, **comps})
     return plan, labels, assignment_record(labels, names)
+
+
 def target_line(targets: list[dict[str, Any]]) -> str:
     """What ``--target-uncertainty`` reached: the relative standard error of the mean dose in
     the target structure per run (one run, or one per phase), with the histories it took."""
@@ -367,11 +369,15 @@ def target_line(targets: list[dict[str, Any]]) -> str:
             "histories; the --histories cap ran out: raise it)")
 
 
-def summary_line(result: Any, world: str, outputs: list[str], path: Path) -> str:  # noqa: ANN401
-    """The one line ``dose`` prints: histories, time, maximum dose, and the energy absorbed in
-    and escaping the world per source particle (photons and electrons)."""
-    unit = result.record()["units"]["dose"]
-    near = json.loads(path.read_text())["near_max_dose_gy"]
+def summary_line(result: Any, world: str, outputs: list[str], path: Path,  # noqa: ANN401
+                 tet_volume_mm3: Any = None) -> str:  # noqa: ANN401
+    """The one line ``dose`` prints: histories, time, near-maximum dose in tissue, and the energy
+    absorbed in and escaping the world per source particle (photons and electrons). The record
+    is taken from ``result`` (its file ``path`` is only renamed into place when the command
+    ends: outputs are written atomically as one)."""
+    record = result.record(tet_volume_mm3)
+    unit = record["units"]["dose"]
+    near = record["near_max_dose_gy"]
     return (f"dose ({world}): {result.n_histories} histories in {result.wall_s:.1f} s; "
             f"near-max (D0.1cm³ in tissue) {near:.4g} {unit}; absorbed {result.absorbed_mev:.4g} MeV and "
             f"escaped {result.escaped_mev:.4g} MeV per particle → {', '.join(outputs)}, {path}")
@@ -421,5 +427,6 @@ def _run_ompmc(args: argparse.Namespace, plan: Any, settings: Any, mesh: Any, de
     result = main.with_extra(**extra, world=world, outputs=outputs)
     path = result.save_json(record_path(args.output), None if mesh is None else mesh.volumes_mm3)
     if not args.quiet:
-        print(summary_line(result, world, outputs, path))
+        print(summary_line(result, world, outputs, path,
+                           None if mesh is None else mesh.volumes_mm3))
     return 0
