@@ -74,7 +74,7 @@ gantry_deg = 0.0
 jaws_mm = [-30.0, 30.0, -30.0, 30.0]
 weight = 100.0
 """)
-reference = Path(next(p for p in phases if p.percent == 50.0).source)
+reference = next(d for d in sorted((work / "ct4d").iterdir()) if "050" in d.name)  # 50 % series
 tetdose_cli("dose", "--mesh", "phases/phase_002.vtu", "--ct", str(reference.relative_to(work)),
             "--labels", "lung/labels.nrrd", "--plan", "plan.toml", "--histories", "5000",
             "-o", "dose/dose.vtu")
@@ -111,13 +111,12 @@ else:
 dose = rd.pixel_array * float(rd.DoseGridScaling)
 ref = next(p for p in phases if p.percent == 50.0).image.array
 moved = phases[0].image.array
-k = ref.shape[2] // 2  # tetdose images are indexed (i, j, k) = (x, y, z)
-zd = dose.shape[0] // 2  # DICOM pixel data: (frame, row, column) = (z, y, x)
+k = ref.shape[0] // 2  # image arrays and DICOM pixel data are both indexed [z, y, x]
 fig, axes = plt.subplots(1, 2, figsize=(9, 4))
-axes[0].imshow(ref[:, :, k].T, cmap="gray", vmin=-1000, vmax=300)
-axes[0].imshow(np.ma.masked_less(dose[zd], 0.1 * dose.max()), cmap="jet", alpha=0.5)
+axes[0].imshow(ref[k], cmap="gray", vmin=-1000, vmax=300)
+axes[0].imshow(np.ma.masked_less(dose[k], 0.1 * dose.max()), cmap="jet", alpha=0.5)
 axes[0].set_title(f"RT Dose on the reference CT [{rd.DoseUnits}]")
-axes[1].imshow((moved - ref)[:, :, k].T, cmap="RdBu_r", vmin=-300, vmax=300)
+axes[1].imshow((moved - ref)[k], cmap="RdBu_r", vmin=-300, vmax=300)
 axes[1].set_title("phase 0 % − reference [HU]")
 for a in axes:
     a.set_axis_off()
