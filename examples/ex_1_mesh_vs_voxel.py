@@ -159,9 +159,13 @@ fig.tight_layout()
 # * Units: no prescription was given, so every dose is per source photon (the JSON records say
 #   so, and so do the axes); add a ``[prescription]`` to the plan for Gy per fraction.
 # * Noise first: with 2·10⁴ photons a tet's dose carries tens of per cent of noise, so the
-#   gamma pass rates printed above are low whatever the physics: they measure the noise. The z
-#   statistics tell whether the worlds differ beyond it. Raise ``--histories`` (or use
-#   ``--target-uncertainty 1%``) before reading a gamma rate or a D98.
+#   gamma pass rates printed above are low whatever the physics: they measure the noise.
+# * Then the statistics, over a region chosen by geometry: the summed doses in the field are the
+#   robust test (they should agree within their σ). A per-voxel z spread above 1 means either
+#   that the per-voxel σ is underestimated (a few histories per voxel make the batch estimate
+#   of σ itself noisy) or that the doses differ locally (e.g. in voxels cut by the mesh
+#   surface): raise ``--histories`` (or use ``--target-uncertainty 1%``) to tell which, before
+#   reading a gamma rate or a D98.
 # * Regions second: compare the mass-weighted means on the same voxels, not two DVHs of
 #   different matter.
 import shutil  # noqa: E402
