@@ -166,7 +166,7 @@ fig.tight_layout()
 #   of σ itself noisy) or that the doses differ locally (e.g. in voxels cut by the mesh
 #   surface): raise ``--histories`` (or use ``--target-uncertainty 1%``) to tell which, before
 #   reading a gamma rate or a D98.
-# * Regions second: compare the mass-weighted means on the same voxels, not two DVHs of
+# * Regions last: compare the mass-weighted means on the same voxels, not two DVHs of
 #   different matter.
 import shutil  # noqa: E402
 
