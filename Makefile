@@ -7,7 +7,7 @@ NUMBA_CACHE_DIR := $(CURDIR)/.numba-cache/$(shell find src/tetdose -name '*.py' 
 export NUMBA_CACHE_DIR
 export MPLBACKEND := Agg
 
-.PHONY: venv demo test validate bench lint tools clean
+.PHONY: venv demo test validate bench lint tools docs clean
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -40,5 +40,14 @@ validate: venv tools
 bench: venv
 	for b in bench/bench_*.py; do $(PY) $$b || exit 1; done
 
+# The documentation site (docs/_build/html/index.html, readable offline): the examples run during
+# the build and a warning fails it. Not part of `make test` (the examples take minutes).
+$(VENV)/.docs-installed: $(VENV)/.installed
+	$(PY) -m pip install --quiet -e '.[docs]'
+	touch $@
+
+docs: $(VENV)/.docs-installed tools
+	$(PY) -m sphinx -W --keep-going -b html docs docs/_build/html
+
 clean:
-	rm -rf $(VENV) .numba-cache .pytest_cache
+	rm -rf $(VENV) .numba-cache .pytest_cache docs/_build docs/generated docs/auto_examples

@@ -1,11 +1,11 @@
-"""Dose with electrons on the real thorax CT against ompmc (EGSnrc physics), the README's VMAT plan.
+"""Dose with electrons on the real thorax CT against ompmc (EGSnrc physics), the guide's VMAT plan.
 
 Run: ``NUMBA_CACHE_DIR=.numba-cache .venv/bin/python bench/validate_real_ct_vs_ompmc.py
 [--histories 3e6] [--ompmc-histories 3e5]`` (needs ``tetdose[ompmc]`` and ``../shared``).
 
-The plan is the ``vmat.toml`` block of README.md ("A VMAT plan on the real CT": two 6 MV arcs
-around the right lung) on ``../shared/data/lung-elastix/3DCT_lung_baseline_small.mha`` (Schneider
-calibration). tetdose (dose mode) and ompmc (PEGS 700icru, so both follow electrons to
+The plan is the ``vmat.toml`` block of docs/user-guide/plans.md ("A VMAT plan on the real CT":
+two 6 MV arcs around the right lung) on ``../shared/data/lung-elastix/3DCT_lung_baseline_small.mha``
+(Schneider calibration). tetdose (dose mode) and ompmc (PEGS 700icru, so both follow electrons to
 0.189 MeV and photons to 0.01 MeV) transport the same source particles; tetdose in kerma mode
 finds the field: the voxels above 50 % of the maximum kerma. Printed per density band of those
 voxels: mass [g], the mass-weighted mean dose per source photon [Gy] of each engine with its σ
@@ -39,14 +39,15 @@ BANDS = ((0.0, UNSCORED_BELOW_G_CM3), (UNSCORED_BELOW_G_CM3, 3.0), (UNSCORED_BEL
 #: Electron cut-off [MeV] kinetic of PEGS 700icru (AE 0.700 MeV total); photons 0.01 MeV.
 CUTOFF_MEV = 0.189
 BATCHES = 10
+PLAN_PAGE = "docs/user-guide/plans.md"  # the VMAT plan of "A VMAT plan on the real CT"
 
 
 def readme_plan() -> Plan:
-    """The README's ``# vmat.toml`` block as a :class:`Plan`."""
-    text = (ROOT / "README.md").read_text()
+    """The user guide's ``# vmat.toml`` block (docs/user-guide/plans.md) as a :class:`Plan`."""
+    text = (ROOT / PLAN_PAGE).read_text()
     block = re.search(r"```toml\n# vmat.toml\n(.*?)```", text, re.S)
     if block is None:
-        raise SystemExit("README.md has no '# vmat.toml' block")
+        raise SystemExit(f"{PLAN_PAGE} has no '# vmat.toml' block")
     return Plan.from_dict(tomllib.loads(block.group(1)))
 
 

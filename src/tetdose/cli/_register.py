@@ -54,7 +54,7 @@ def add_registration_args(p: argparse.ArgumentParser) -> None:
                    help="demons: start every phase from zero, not from its neighbour's field "
                    "(phases are otherwise registered outward from the reference)")
     p.add_argument("--inverse-consistency", action="store_true",
-                   help="also register phase → reference and report |u(x) + w(x + u(x))| (2× time)")
+                   help="also register phase → reference and report ‖u(x) + w(x + u(x))‖ (2× time)")
 
 
 def settings_from(args: argparse.Namespace) -> RegistrationSettings:

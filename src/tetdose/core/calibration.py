@@ -74,7 +74,32 @@ class RangeReport:
 
 @dataclass(frozen=True, eq=False)
 class HUCalibration:
-    """Piecewise-linear HU → density [g/cm³] curve through ``(hu, density_g_cm3)`` nodes."""
+    """Piecewise-linear HU → density [g/cm³] curve through ``(hu, density_g_cm3)`` nodes.
+
+    Parameters
+    ----------
+    hu : (N,) float
+        CT numbers of the nodes [HU], strictly increasing, N ≥ 2.
+    density_g_cm3 : (N,) float
+        Mass density at each node [g/cm³], ≥ 0; held constant beyond the end nodes.
+    name : str
+        Recorded in the outputs (``"schneider2000"`` for the default curve).
+
+    Raises
+    ------
+    CalibrationError
+        Fewer than two nodes, non-finite values, HU not increasing, or a negative density.
+
+    Examples
+    --------
+    >>> cal = HUCalibration([-1000.0, 0.0, 1000.0], [0.0, 1.0, 2.0])
+    >>> cal.density([-500.0, 500.0]).tolist()
+    [0.5, 1.5]
+    >>> float(cal.hu_of(1.5))                     # the inverse, for a virtual CT
+    500.0
+    >>> HUCalibration.schneider2000().density([100.0, 101.0]).tolist()  # not monotonic
+    [1.1199, 1.0762]
+    """
 
     hu: FloatArray
     density_g_cm3: FloatArray

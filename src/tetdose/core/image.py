@@ -31,7 +31,33 @@ DENSITY_LIKE_MAX = 3.5
 
 @dataclass(frozen=True, eq=False)
 class ImageGrid:
-    """Geometry of a 3-D voxel grid: origin [mm], spacing [mm], direction cosines, size."""
+    """Geometry of a 3-D voxel grid: origin [mm], spacing [mm], direction cosines, size.
+
+    Parameters
+    ----------
+    origin_mm : (3,) float
+        Centre of voxel (0, 0, 0) in the patient frame [mm].
+    spacing_mm : (3,) float
+        Voxel size along the grid's axes [mm], > 0.
+    direction : (3, 3) float
+        Direction cosines, columns = the grid's axes in the patient frame (orthonormal).
+    size : (int, int, int)
+        Voxels along each axis; arrays on the grid are indexed ``[i, j, k]``.
+
+    Raises
+    ------
+    ImageError
+        A non-positive size or spacing, a non-finite origin, or a non-orthonormal direction.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> g = ImageGrid([-10.0, -10.0, 0.0], [2.0, 2.0, 3.0], np.eye(3), (10, 10, 4))
+    >>> g.voxel_volume_mm3, g.n_voxels
+    (12.0, 400)
+    >>> g.index_to_physical([[1, 2, 3]]).tolist()  # voxel centre [mm]
+    [[-8.0, -6.0, 9.0]]
+    """
 
     origin_mm: FloatArray
     spacing_mm: FloatArray

@@ -318,7 +318,27 @@ def read_image(path: str | os.PathLike[str], *, resample_tilted: bool | None = N
 def read_ct(path: str | os.PathLike[str], *, resample_tilted: bool | None = None) -> Image:
     """Read a CT [HU] with :func:`read_image` and refuse what cannot be one
     (:func:`tetdose.core.image.check_ct_hu`: unsigned or 8-bit pixels, NaN voxels, values off the HU
-    range)."""
+    range).
+
+    Parameters
+    ----------
+    path : str or path
+        A DICOM CT series folder, or an NRRD / MHA / NIfTI file in Hounsfield units.
+    resample_tilted : bool, optional
+        Resample a gantry-tilted or sheared series onto an orthogonal grid instead of refusing it
+        (default: the CLI's ``--resample-tilted`` policy, else refuse).
+
+    Returns
+    -------
+    Image
+        The CT [HU] on its grid (origin and spacing [mm], direction cosines).
+
+    Raises
+    ------
+    ImageError
+        Not a CT that can be used (modality, slice spacing, tilt, pixel type, values), with a
+        one-line message naming the fix.
+    """
     return check_ct_hu(read_image(path, resample_tilted=resample_tilted), f"the CT {path}")
 
 

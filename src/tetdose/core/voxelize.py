@@ -4,10 +4,12 @@ Voxel mass (eq. 14–15): m(V_j) = Σ_k ∫_{V_j ∩ T_k} ρ dV = Σ_k Σ_a ρ_a
 for a density linear in each tetrahedron (barycentric moments from :mod:`tetdose.core.overlap`).
 
 Voxels only partly inside the mesh (covered volume c_j < Vol(V_j)):
+
 - ``partial="mass"`` (plain partial volume): ρ_j = (m_j + ρ_bg,j (Vol(V_j) − c_j)) / Vol(V_j);
   Σ_j m_j equals the mesh mass exactly (for a mesh inside the grid);
 - ``partial="extrapolate"`` (the paper's option): ρ_j = m_j / c_j, the inside density spread
   over the whole voxel.
+
 Voxels the mesh does not touch get the background: ``"air"`` (0.0012 g/cm³), a constant
 [g/cm³], or an :class:`Image` of densities on the same grid (e.g. the original CT).
 """

@@ -8,12 +8,14 @@ mass (:mod:`tetdose.dose.accumulate`).
 **The body of each phase.** Without a CT the mesh is alone in vacuum. With a reference CT the
 mesh runs inside the phase's body (the hybrid world, :mod:`tetdose.transport.geometry.world`), and the
 voxel-only reference dose of the phase is computed on exactly that body:
+
   * ``phase_ct`` given (a real 4D-CT, one CT per phase on one grid): that phase's CT;
   * ``dvfs`` given (the phases came from displacement fields): the virtual phase CT with the
     reference CT warped by the phase's DVF outside the mesh;
   * otherwise the virtual phase CT of :func:`tetdose.motion.ct4d.phase_densities`: the mesh
     voxelized (mass-exact) and, outside it, the reference CT unmoved — voxels the moving mesh
     leaves get the reference CT's density back, voxels it enters are partly mesh (as ``4dct``).
+
 In the hybrid world a voxel cut by the mesh surface is transported with its body density on the
 part outside the mesh. The voxel part accumulates per voxel, ΣwE/Σwm (exact when the tissue
 outside the mesh does not move, i.e. the reference-CT body); the voxel-only reference doses are

@@ -134,7 +134,26 @@ def update_density(reference: TetMesh, density0_g_cm3: FloatArray, phase: TetMes
 
 def update_series(series: PhaseSeries, density0_g_cm3: FloatArray | None = None, *,
                   method: str = "l2") -> tuple[PhaseSeries, list[PhaseReport]]:
-    """Density of every phase from the reference (default: its point_data ``density``)."""
+    """Density of every phase from the reference (default: its point_data ``density``).
+
+    Parameters
+    ----------
+    series : PhaseSeries
+        The reference mesh and the moved points of each phase [mm].
+    density0_g_cm3 : (n_points,) float, optional
+        Reference vertex densities [g/cm³]; default the reference mesh's point_data ``density``.
+    method : {"l2", "lsq"}
+        ``"l2"``: L2 projection of the pushed-forward density (total mass kept to round-off);
+        ``"lsq"``: the paper's per-tetrahedron least squares (eq. 10).
+
+    Returns
+    -------
+    series : PhaseSeries
+        The same motion with point_data ``density`` [g/cm³] on every phase.
+    reports : list of PhaseReport
+        Per phase: mass [g], its relative change against the reference, density range [g/cm³]
+        and the largest relative volume change of a tetrahedron.
+    """
     ref = series.reference
     rho0 = reference_density(ref) if density0_g_cm3 is None else np.asarray(density0_g_cm3,
                                                                              dtype=np.float64)

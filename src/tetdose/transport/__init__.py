@@ -50,7 +50,37 @@ __all__ = ["DoseResult", "PhotonSource", "Plan", "TransportSettings", "World", "
 
 def simulate(geometry: TetMesh | Image | World, plan: Plan, settings: TransportSettings, *,
              labels: Image | None = None, progress: bool | None = None) -> DoseResult:
-    """Run ``plan`` in a world: dose per tetrahedron, per voxel, or both (hybrid)."""
+    """Run ``plan`` in a world: dose per tetrahedron, per voxel, or both (hybrid).
+
+    Parameters
+    ----------
+    geometry : World, TetMesh or Image
+        Where the particles travel: a :class:`World` (a mesh inside a density image: the hybrid
+        world), a mapped :class:`TetMesh` (point_data ``density`` [g/cm³], in vacuum) or a
+        density :class:`Image` [g/cm³] (the voxel engine).
+    plan : Plan
+        The sources (beams), region names, materials and prescription.
+    settings : TransportSettings
+        Histories, batches, seed, physics (``"dose"`` with electrons, or ``"kerma"``), cut-offs
+        [MeV], tallies and variance reduction.
+    labels : Image, optional
+        Region labels of a density image (materials and structures of the voxels).
+    progress : bool, optional
+        Show a progress bar (default: when the run is long).
+
+    Returns
+    -------
+    DoseResult
+        Dose per source particle [Gy] and its standard deviation from the batches, per
+        tetrahedron and/or per voxel (``mesh_part()``, ``to_images()``), with the energy ledger
+        [MeV] and the run record.
+
+    Raises
+    ------
+    TetdoseError
+        Inputs that cannot be run (a beam reaching no cell, a plan naming an unknown region,
+        settings out of range), each with a one-line message naming the fix.
+    """
     world = as_world(geometry, labels)
     settings = resolved_target(settings, plan)
     job, on_grid = build_job(world, plan, settings)
