@@ -25,12 +25,12 @@ from tetdose.core.io import read_image, write_image
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "lung-elastix"
 ISO_MM = np.array([-70.0, -34.0, -1264.0])
 RADIUS_MM = 15.0
-README = Path(__file__).resolve().parents[1] / "README.md"
+PLAN_PAGE = Path(__file__).resolve().parents[1] / "docs" / "user-guide" / "plans.md"
 
 
 def plan_toml() -> str:
-    """The README's vmat.toml with [regions] tumour = 2."""
-    text = README.read_text()
+    """The user guide's vmat.toml (docs/user-guide/plans.md) with [regions] tumour = 2."""
+    text = PLAN_PAGE.read_text()
     start = text.index("# vmat.toml\n") + len("# vmat.toml\n")
     return text[start:text.index("```", start)] + "\n[regions]\ntumour = 2\n"
 
