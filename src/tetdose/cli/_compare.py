@@ -41,7 +41,7 @@ def add_args(parser: argparse.ArgumentParser) -> None:
                         help="dose VTU (cell_data dose; dose_std: its σ) or a folder holding "
                              "accumulated.vtu")
     parser.add_argument("--voxel-dose", type=Path,
-                        help="dose image (.nrrd …; its σ: *_std beside it, dose_std.nrrd for "
+                        help="dose image (.nrrd …; its σ: the _std image beside it, dose_std.nrrd for "
                              "dose.nrrd) or a folder holding accumulated.nrrd")
     parser.add_argument("--dose", type=Path,
                         help="instead of --mesh-dose/--voxel-dose: a dose of the same kind as "
