@@ -373,7 +373,7 @@ def test_fixed_gantry_sliding_window_with_cw_and_no_later_angles_is_a_fixed_beam
               for p in (omitted, explicit)]
     source = np.asarray(ISO) + 1000.0 * beam_axes(30.0, 10.0, 5.0)[2]
     for i in range(300):
-        a, b = (np.array(sample_source(s, np.uint64(seed_for(5, 0, i)))[2:]) for s in arrays)
+        a, b = (np.array(sample_source(s, np.uint64(seed_for(5, 0, i)), np.empty(0))[2:]) for s in arrays)
         np.testing.assert_array_equal(a, b)
         np.testing.assert_allclose(a[:3], source, atol=1e-9)
 

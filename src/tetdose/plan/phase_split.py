@@ -103,7 +103,19 @@ def _phase_beam(beam: LinacBeam, pieces: list) -> LinacBeam:
     for _phase, a, b, turns, mu, u1, u2 in pieces:
         cps.extend(_piece(beam, a, b, turns, u1, u2, w, w + mu))
         w += mu
+    for k in range(1, len(cps) - 1, 2):  # a piece's end → the next piece's start: no MU
+        cps[k] = _standing(cps[k], cps[k + 1])
     return replace(beam, control_points=tuple(cps), meterset=w, isocenter_region=None)
+
+
+def _standing(end: ControlPoint, nxt: ControlPoint) -> ControlPoint:
+    """``end`` with direction NONE on every axis whose angle the next piece starts at: two
+    pieces that meet (one interval cut only by other phases' time, or adjacent intervals) do not
+    turn between them — CW/CC there would read as a full turn (DICOM C.8.8.14.8)."""
+    still = {f"{name}_rotation": "NONE" for name in ("gantry", "collimator", "couch")
+             if abs((getattr(nxt, f"{name}_deg") - getattr(end, f"{name}_deg") + 180.0) % 360.0
+                    - 180.0) < 1e-9}
+    return replace(end, **still) if still else end
 
 
 def _piece(beam: LinacBeam, a: ControlPoint, b: ControlPoint, turns: tuple[float, ...],
