@@ -106,3 +106,19 @@ def same_bits_with_one_or_two_threads(tmp_path: Path, imports_from: Path, run: s
         out[threads] = np.load(path)
     assert out[1].sum() > 0
     np.testing.assert_array_equal(out[1], out[2])
+
+
+def interrupt(proc, sig: int, timeout_s: float) -> tuple[int, str, float]:
+    """Send ``sig`` to a running CLI subprocess as the terminal does (Ctrl-C: its process group)
+    or as ``kill`` does (SIGTERM); returns (exit code, the rest of its stderr, seconds it took)."""
+    import signal
+    import time
+
+    sent = time.monotonic()
+    if sig == signal.SIGINT:
+        os.killpg(proc.pid, sig)
+    else:
+        os.kill(proc.pid, sig)
+    rest = proc.stderr.read()
+    code = proc.wait(timeout=timeout_s)
+    return code, rest, time.monotonic() - sent

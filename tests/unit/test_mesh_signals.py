@@ -18,6 +18,8 @@ import pytest
 from tetdose.core.image import Image, ImageGrid
 from tetdose.core.io import write_image
 
+from helpers import interrupt
+
 pytest.importorskip("mmgpy")
 
 
@@ -65,14 +67,8 @@ def test_mesh_stops_cleanly_on_a_signal(labels, tmp_path, sig, code):
         assert any("background mesh" in ln for ln in lines), "".join(lines)
         assert len(_tagged(tag)) >= 2, "the mesher child is not running"
         time.sleep(0.5)
-        sent = time.monotonic()
-        if sig == signal.SIGINT:
-            os.killpg(proc.pid, sig)  # what the terminal does on Ctrl-C
-        else:
-            os.kill(proc.pid, sig)
-        rest = proc.stderr.read()
-        assert proc.wait(timeout=30) == code
-        assert time.monotonic() - sent < 15.0
+        got, rest, seconds = interrupt(proc, sig, timeout_s=30)
+        assert got == code and seconds < 15.0
     finally:
         if proc.poll() is None:
             proc.kill()

@@ -7,7 +7,6 @@ those of one call per batch group, whatever the cut (kerma and dose mode, hybrid
 
 from __future__ import annotations
 
-import os
 import signal
 import subprocess
 import sys
@@ -22,7 +21,7 @@ from tetdose.core.io import write_image
 from tetdose.transport import PhotonSource, Plan, TransportSettings, World
 from tetdose.transport.run.job import Pace, build_job, cross_sections, run_batches
 
-from helpers import box_mesh, grid_for
+from helpers import box_mesh, grid_for, interrupt
 
 
 class _Cut(Pace):
@@ -89,14 +88,8 @@ def test_dose_stops_mid_transport_within_seconds(water, tmp_path, sig, code):
         assert any("will take about" in ln for ln in lines), "".join(lines)
         time.sleep(1.0)  # well inside the batches (one batch is 10¹⁰ histories)
         assert proc.poll() is None
-        sent = time.monotonic()
-        if sig == signal.SIGINT:
-            os.killpg(proc.pid, sig)  # what the terminal does on Ctrl-C
-        else:
-            os.kill(proc.pid, sig)
-        rest = proc.stderr.read()
-        assert proc.wait(timeout=60) == code
-        assert time.monotonic() - sent < 5.0
+        got, rest, seconds = interrupt(proc, sig, timeout_s=60)
+        assert got == code and seconds < 5.0
     finally:
         if proc.poll() is None:
             proc.kill()
