@@ -43,6 +43,7 @@ from tetdose.transport.physics.materials import (
     DENSITY_CLASS_MATERIALS,
     MATERIALS,
     Material,
+    library_hint,
     material_for_density,
 )
 
@@ -107,8 +108,8 @@ def composition_classes(mean_density_g_cm3: FloatArray, region: IntArray | None,
     cls = material_for_density(mean_density_g_cm3).astype(np.intp)
     for label, name in (region_materials or {}).items():
         if name not in MATERIALS and name not in (compositions or {}):
-            raise PlanError(f"region {label}: material {name!r} is unknown; use one of "
-                            f"{sorted(MATERIALS)} or define it as [materials.{name}]")
+            raise PlanError(f"region {label}: material {name!r} is unknown; {library_hint(name)} "
+                            f"or define it as [materials.{name}]")
         if region is None or not np.any(region == label):
             continue
         if name not in names:

@@ -91,7 +91,7 @@ from tetdose.errors import DensityError, OptionError, PlanError, TetdoseError
 from tetdose.plan.model import Plan
 from tetdose.transport import World, resolved_target, target_cells
 from tetdose.transport.history.result import DoseResult
-from tetdose.transport.physics.materials import MATERIALS, Material
+from tetdose.transport.physics.materials import MATERIALS, Material, library_hint
 from tetdose.transport.physics.xs import ELECTRON_MASS_MEV, mass_coefficients
 from tetdose.transport.run.job import (
     MIN_TARGET_BATCHES,
@@ -282,8 +282,8 @@ def choose_media(names: list[str], options: OmpmcOptions,
     known = dict(MATERIALS) | dict(compositions or {})
     unknown = [n for n in names if n not in known]
     if unknown:
-        raise PlanError(f"material {unknown[0]!r} has no composition in tetdose; use one of "
-                        f"{sorted(MATERIALS)} or define it as [materials.{unknown[0]}]")
+        raise PlanError(f"material {unknown[0]!r} has no composition in tetdose; "
+                        f"{library_hint(unknown[0])} or define it as [materials.{unknown[0]}]")
     typical = {n: known[n].density_g_cm3 for n in names} | dict(density_g_cm3 or {})
     # two significant digits: phases of one study share the choice (and its cache entry)
     return {n: _choose(known[n], pegs, options.media.get(n),

@@ -11,10 +11,21 @@
 - ICRP Reference Man tissues as in ICRU Report 37 / NIST ESTAR (with ESTAR's I): ``icrp_cortical_bone``
   (1.85 g/cm³, EGSnrc's ICRPBONE), ``icrp_soft_tissue``, ``icrp_lung``, ``icrp_adipose``,
   ``icrp_skeletal_muscle``.
-- ICRP Publication 110 adult male media: ``icrp110_*`` (mineral bone, teeth, spongiosa of
-  cranium, pelvis, ribs and lumbar spine, medullary cavity, cartilage, skin, blood, muscle, liver,
-  brain, heart, kidney, stomach, spleen, adipose, lung, miscellaneous soft tissue). ICRP-145
-  phantoms read by tetdose keep the compositions of their own ``.material`` file.
+- ICRP Publication 110 (2009) adult reference computational phantoms, Annex B Tables B.1/B.2:
+  all 53 media of each, ``icrp110_m_<medium>`` (male) and ``icrp110_f_<medium>`` (female), e.g.
+  ``icrp110_m_mineral_bone``, ``icrp110_f_lumbar_spine_spongiosa``, ``icrp110_m_lung``,
+  ``icrp110_f_air``. The earlier names ``icrp110_<medium>`` (mineral bone, teeth, spongiosa of
+  cranium, pelvis, ribs and lumbar spine, medullary cavity, cartilage, skin, blood, muscle,
+  liver, brain, heart, kidney, stomach, spleen, adipose, lung, miscellaneous soft tissue) remain,
+  as the male media. ICRP-145 phantoms read by tetdose keep the compositions of their own
+  ``.material`` file.
+- ICRU Report 46 (1992) Table A.1 (Woodard & White 1986; White, Woodard & Hammond 1987): the
+  adult and age-independent body tissues, ``icru46_<tissue>``: e.g. ``icru46_adipose_1`` … ``_3``,
+  ``icru46_mammary_gland_1`` … ``_3``, ``icru46_liver``, ``icru46_lung`` (inflated, 0.26 g/cm³),
+  ``icru46_cortical_bone``, ``icru46_cranium``, ``icru46_femur_30y``, ``icru46_spongiosa``,
+  ``icru46_red_marrow``, ``icru46_yellow_marrow``, ``icru46_vertebra_d6_l3``, calculi.
+  A table's fractions that do not sum to 1 (rounding) are stored normalised, with the table's
+  sum (``table_sum``) and a note in ``source``.
 - Phantom materials ``pmma``, ``polystyrene`` (ESTAR, with I), ``solid_water`` (RMI-457);
   implant metals ``titanium``, ``ti6al4v`` (ASTM F136), ``cocrmo`` (ASTM F75),
   ``stainless_steel_316l`` (ASTM F138), nominal compositions.
@@ -49,7 +60,9 @@ bone a region label with its own material when this matters.
 
 from __future__ import annotations
 
+import difflib
 import json
+from dataclasses import replace
 from importlib import resources
 
 import numpy as np
@@ -69,11 +82,16 @@ def _m(name: str, rho: float, source: str, **fractions: float) -> Material:
 
 
 def _library() -> tuple[Material, ...]:
-    """The named media of ``data/compositions.json`` (sources in each entry)."""
+    """The named media of ``data/compositions.json`` (sources in each entry), then its aliases
+    (earlier names of some of them, e.g. ``icrp110_kidney`` = ``icrp110_m_kidneys``)."""
     text = resources.files("tetdose.transport.physics").joinpath("data/compositions.json")
-    return tuple(material_from_symbols(name, d["composition"], d["density_g_cm3"], d["source"],
-                                       d.get("mean_excitation_ev"))
-                 for name, d in json.loads(text.read_text())["materials"].items())
+    raw = json.loads(text.read_text())
+    media = {name: material_from_symbols(name, d["composition"], d["density_g_cm3"], d["source"],
+                                         d.get("mean_excitation_ev"))
+             for name, d in raw["materials"].items()}
+    aliases = tuple(replace(media[target], name=alias, source=f"{media[target].source} (= {target})")
+                    for alias, target in raw["aliases"].items())
+    return (*media.values(), *aliases)
 
 
 #: Built-in materials by name. Sources: ICRU 44 via NIST SRD 126 Table 2.
@@ -133,6 +151,14 @@ def resolve_material(material: Material | str) -> Material:
     try:
         return MATERIALS[material]
     except KeyError:
-        raise PlanError(
-            f"unknown material {material!r}; choose one of {sorted(MATERIALS)} or pass a Material"
-        ) from None
+        raise PlanError(f"unknown material {material!r}; {library_hint(material)} or pass a "
+                        "Material") from None
+
+
+def library_hint(name: str) -> str:
+    """The end of an unknown-name message: the library's closest names and where it is listed
+    (the library has ~200 names, too many to print)."""
+    close = difflib.get_close_matches(name, MATERIALS, n=4, cutoff=0.5)
+    near = f"closest: {', '.join(close)}; " if close else ""
+    return (f"{near}choose a built-in medium (the {len(MATERIALS)} names of "
+            "tetdose.transport.physics.materials.MATERIALS, listed in the user guide's physics page)")

@@ -146,13 +146,19 @@ def kn_cross_section_cm2(energy_mev: FloatArray) -> FloatArray:
     )
 
 
+@cache
+def _gauss_legendre() -> tuple[FloatArray, FloatArray]:
+    """Gauss–Legendre nodes and weights on [−1, 1] (computed once: an eigenproblem each)."""
+    return np.polynomial.legendre.leggauss(_GL_NODES)
+
+
 def _kn_mean_fraction(energy_mev: FloatArray, a_per_mev: float) -> FloatArray:
     """⟨E_col(T)⟩_KN / E per Compton event, E_col = ln(1 + aT)/a (= T for a = 0).
 
     Gauss–Legendre in ε = E'/E ∈ [1/(1+2k), 1] with dσ/dε ∝ ε + 1/ε − sin²θ,
     1 − cos θ = (1/ε − 1)/k, T = E(1 − ε).
     """
-    x, w = np.polynomial.legendre.leggauss(_GL_NODES)
+    x, w = _gauss_legendre()
     e = np.asarray(energy_mev, dtype=np.float64)[:, None]
     k = e / ELECTRON_MASS_MEV
     eps0 = 1.0 / (1.0 + 2.0 * k)
