@@ -60,10 +60,7 @@ def add_args(parser: argparse.ArgumentParser) -> None:
                         help="photon energy cut-off, deposited locally [MeV]")
     add_calibration_arg(parser)
     parser.add_argument("--labels", type=Path, help="label image for --ct (region → [materials])")
-    parser.add_argument("--ct-materials", choices=("schneider", "density-classes"), default="schneider",
-                        help="composition of the CT voxels no [materials] region claims: "
-                        "Schneider et al. 2000's HU bins (default; 24 compositions) or the "
-                        "five density classes (air, lung, adipose, soft tissue, bone)")
+    add_ct_materials_arg(parser, "CT voxels no [materials] region claims")
     parser.add_argument("-o", "--output", type=Path, required=True,
                         help="dose.vtu (with --mesh, also with --ct) or dose.nrrd / .mha / "
                              ".nii.gz (--ct alone)")
@@ -73,6 +70,14 @@ def add_args(parser: argparse.ArgumentParser) -> None:
                         "dose_vertex_std [Gy]")
     add_dask_arg(parser)
     add_engine_args(parser)
+
+
+def add_ct_materials_arg(parser: argparse.ArgumentParser, what: str) -> None:
+    parser.add_argument("--ct-materials", choices=("schneider", "density-classes"),
+                        default="schneider",
+                        help=f"composition of the {what}: Schneider et al. 2000's HU bins "
+                        "(default; 24 compositions) or the five density classes (air, lung, "
+                        "adipose, soft tissue, bone); recorded in the outputs")
 
 
 #: Transport engines of ``--engine``.

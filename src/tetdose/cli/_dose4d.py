@@ -8,6 +8,7 @@ from pathlib import Path
 from tetdose.cli import _interplay
 from tetdose.cli._common import add_calibration_arg, calibration_from, check_output, int_at_least
 from tetdose.cli._dose import (
+    add_ct_materials_arg,
     add_dask_arg,
     add_engine_args,
     add_run_args,
@@ -45,6 +46,7 @@ def add_args(p: argparse.ArgumentParser) -> None:
                         "--dvf`): the reference CT warped by each is the body outside the mesh")
     p.add_argument("-o", "--output", type=Path, required=True, help="output folder")
     add_calibration_arg(p)
+    add_ct_materials_arg(p, "phase bodies' voxels (--like, --ct4d) outside the mesh")
     add_dask_arg(p)
     p.add_argument("--batches-per-task", type=int_at_least(1), default=1,
                    help="with --dask: batches per dask task (default 1)")
@@ -86,7 +88,8 @@ def run(args: argparse.Namespace) -> int:
     with dask_context(args.dask) as client:
         kwargs = {"ct_hu": ct, "calibration": calibration_from(args), "phase_ct": phase_ct,
                   "dvfs": dvfs, "progress": not args.quiet, "client": client,
-                  "batches_per_task": args.batches_per_task, "voxel_engine": engine}
+                  "batches_per_task": args.batches_per_task, "voxel_engine": engine,
+                  "ct_materials": args.ct_materials}
         if timed:
             return _interplay.run(args, series, plan, settings, kwargs, _unit(plan))
         result = run_dose4d(series, plan, settings, **kwargs)

@@ -101,3 +101,36 @@ def assignment_record(labels: Image, names: dict[int, str]) -> dict[str, object]
     lab = np.asarray(labels.array)
     return {"rule": "schneider", "citation": citation,
             "voxels": {names[k]: int(np.count_nonzero(lab == k)) for k in sorted(names)}}
+
+
+def body_hu(density: Image, calibration: HUCalibration, ct_hu: Image | None = None) -> Image:
+    """CT numbers [HU] of a phase body known by its density [g/cm³] (a moved or virtual phase
+    CT): ``ct_hu``'s own HU where the density is the one the calibration gives them (the
+    reference CT unmoved), else the calibration's inverse, the lowest HU reaching the density
+    (:meth:`HUCalibration.hu_of`; on a non-monotonic curve such as Schneider's around 100 HU the
+    lower branch, soft tissue rather than marrow)."""
+    rho = np.asarray(density.array, dtype=np.float64)
+    hu = calibration.hu_of(rho)
+    if ct_hu is not None:
+        ct_hu.grid.require_same(density.grid, "the reference CT and the phase body")
+        ref = np.asarray(ct_hu.array, dtype=np.float64)
+        hu = np.where(calibration.density(ref) == rho, ref, hu)
+    return Image(hu, density.grid)
+
+
+def schneider_bodies(bodies_hu: list[Image], calibration: HUCalibration, hu_from: str
+                     ) -> tuple[list[Image], dict[int, str], dict[str, Material],
+                                dict[str, object]]:
+    """Schneider labels of several bodies (the phases of a 4D run; no plan region claims their
+    voxels): (label images, label → name, name → Material over all bodies, run record with the
+    voxels of each bin per body and ``hu_from``, where the HU came from)."""
+    labels, names, mats, voxels = [], {}, {}, []
+    for hu in bodies_hu:
+        lab, n, m = schneider_labels(hu, calibration, None, ())
+        labels.append(lab)
+        names.update(n)
+        mats.update(m)
+        voxels.append(assignment_record(lab, n)["voxels"])
+    citation, _, _ = _table()
+    return labels, names, mats, {"rule": "schneider", "citation": citation, "hu_from": hu_from,
+                                 "voxels_per_phase": voxels}

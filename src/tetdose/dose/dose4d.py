@@ -16,6 +16,12 @@ voxel-only reference dose of the phase is computed on exactly that body:
     voxelized (mass-exact) and, outside it, the reference CT unmoved — voxels the moving mesh
     leaves get the reference CT's density back, voxels it enters are partly mesh (as ``4dct``).
 
+**Compositions of the bodies** (``ct_materials``, as ``tetdose dose --ct``): Schneider's HU →
+composition bins (default; :mod:`tetdose.core.ct_materials`) from each phase's HU — the phase CT's
+own (``phase_ct``), else the reference CT's where the body is the reference CT unmoved and the
+calibration's inverse elsewhere (:func:`tetdose.core.ct_materials.body_hu`) — or the five density
+classes (``"density-classes"``). The mesh's tets keep the plan's regions and density classes.
+
 In the hybrid world a voxel cut by the mesh surface is transported with its body density on the
 part outside the mesh. The voxel part accumulates per voxel, ΣwE/Σwm (exact when the tissue
 outside the mesh does not move, i.e. the reference-CT body); the voxel-only reference doses are
@@ -42,6 +48,7 @@ from tetdose._atomic import atomic_write_dir
 from tetdose._constants import MM3_PER_CM3
 from tetdose.core.body import NEAR_MAX_SAID, near_max_gy
 from tetdose.core.calibration import HUCalibration
+from tetdose.core.ct_materials import CT_MATERIAL_RULES, body_hu, schneider_bodies
 from tetdose.core.image import Image
 from tetdose.core.io import write_image, write_mesh
 from tetdose.core.mesh import TetMesh
@@ -54,7 +61,7 @@ from tetdose.dose.accumulate import (
     energy_mass_transfer,
 )
 from tetdose.dose.dose_to import mark
-from tetdose.errors import ImageError, MeshError
+from tetdose.errors import ImageError, MeshError, OptionError
 from tetdose.motion.ct4d import phase_densities
 from tetdose.motion.dvf import DisplacementField
 from tetdose.motion.phases import PhaseSeries
@@ -105,6 +112,8 @@ class Dose4D:
     body: BodyDose4D | None = None
     #: The delivery in time when the phases got only their share of it (dose.interplay).
     delivery: dict[str, object] | None = None
+    #: How the bodies' voxels got their compositions (run_dose4d's ``ct_materials``).
+    ct_materials: dict[str, object] | None = None
 
     @property
     def dose_to(self) -> str:
@@ -145,6 +154,8 @@ class Dose4D:
             out["dose_to_water"] = self.results[0].extra["dose_to_water"]
         if self.delivery is not None:
             out["delivery"] = self.delivery
+        if self.ct_materials is not None:
+            out["ct_materials"] = self.ct_materials
         if self.body is not None:  # densities of phase 0's voxels (mesh and body together)
             vox = self.results[0].combined()
             cm3 = vox.grid.voxel_volume_mm3 / MM3_PER_CM3
@@ -161,7 +172,8 @@ def run_dose4d(series: PhaseSeries, plan: Plan, settings: TransportSettings, *,
                client: Any = None, batches_per_task: int = 1,  # noqa: ANN401
                voxel_engine: VoxelEngine | None = None,
                phase_plans: Sequence[Plan] | None = None,
-               phase_settings: Sequence[TransportSettings] | None = None) -> Dose4D:
+               phase_settings: Sequence[TransportSettings] | None = None,
+               ct_materials: str = "schneider") -> Dose4D:
     """Transport ``plan`` on every phase of ``series`` (which must carry densities).
 
     With ``ct_hu`` every phase runs in the hybrid world — the phase mesh inside the phase's body
@@ -182,7 +194,12 @@ def run_dose4d(series: PhaseSeries, plan: Plan, settings: TransportSettings, *,
     ``phase_plans`` / ``phase_settings`` (one per phase, e.g. from :mod:`tetdose.dose.interplay`):
     phase k transports its own plan with its own settings (histories and stream as given)
     instead of ``plan`` with stream k; the absolute scale still comes from ``plan``.
+
+    ``ct_materials``: the compositions of the bodies' voxels, ``"schneider"`` (default) or
+    ``"density-classes"`` (module docstring; recorded in :meth:`Dose4D.summary`).
     """
+    if ct_materials not in CT_MATERIAL_RULES:
+        raise OptionError(f"ct_materials must be one of {CT_MATERIAL_RULES}, got {ct_materials!r}")
     if series.density_g_cm3 is None:
         raise MeshError("the phases carry no density; run the density update first "
                         "(tetdose deform, or motion.update_series)")
@@ -205,11 +222,20 @@ def run_dose4d(series: PhaseSeries, plan: Plan, settings: TransportSettings, *,
                         "one per phase")
     if voxel_engine is not None:
         return _with_engine(series, plan, plans, sets, meshes, density, voxel_engine)
-    worlds = [World(mesh=m, density=None if density is None else density[k])
+    labels: list[Image | None] = [None] * n
+    record = None
+    if density is not None:
+        record = {"rule": ct_materials}
+        if ct_materials == "schneider":
+            labels, plan, plans, record = _schneider(density, ct_hu, phase_ct, calibration, plan,
+                                                     plans)
+    worlds = [World(mesh=m, density=None if density is None else density[k], labels=labels[k])
               for k, m in enumerate(meshes)]
-    geoms: list[World | TetMesh | Image] = [*worlds, *(density or [])]
+    geoms: list[World | TetMesh | Image] = [
+        *worlds, *(World(density=d, labels=lab) if lab is not None else d
+                   for d, lab in zip(density or [], labels, strict=False))]
     if phase_plans is not None:
-        each = [simulate_on(client, [geoms[k], *([density[k]] if density else [])], plans[k],
+        each = [simulate_on(client, [geoms[k], *([geoms[n + k]] if density else [])], plans[k],
                             sets[k], batches_per_task=batches_per_task, progress=False)
                 for k in range(n)]
         results = [r[0] for r in each] + [r[1] for r in each if len(r) > 1]
@@ -229,7 +255,28 @@ def run_dose4d(series: PhaseSeries, plan: Plan, settings: TransportSettings, *,
         voxel = _voxel_way(series, density, results[n:])
         body = _body_way(series, accumulated, results[:n])
     # Prescription (tetdose.plan.prescription): one scale for every phase and accumulation.
-    return absolute_dose4d(Dose4D(series, results[:n], accumulated, voxel, body), plan)
+    return absolute_dose4d(Dose4D(series, results[:n], accumulated, voxel, body,
+                                  ct_materials=record), plan)
+
+
+def _schneider(density: list[Image], ct_hu: Image | None, phase_ct: list[Image] | None,
+               calibration: HUCalibration | None, plan: Plan, plans: list[Plan]
+               ) -> tuple[list[Image | None], Plan, list[Plan], dict[str, object]]:
+    """Schneider labels of the phase bodies, the plans with their compositions, the record."""
+    cal = calibration or HUCalibration.schneider2000()
+    if phase_ct is not None:
+        hu, said = list(phase_ct), "the phase CTs"
+    else:
+        hu = [body_hu(d, cal, ct_hu) for d in density]
+        said = ("the reference CT where the body is it unmoved, else the calibration's inverse "
+                "(lowest HU of the density)")
+    labels, names, comps, record = schneider_bodies(hu, cal, said)
+
+    def add(p: Plan) -> Plan:
+        return replace(p, materials={**p.materials, **names},
+                       compositions={**p.compositions, **comps})
+
+    return list(labels), add(plan), [add(p) for p in plans], record
 
 
 def _to_target(client: Any, geoms: list[World | TetMesh | Image], plan: Plan,  # noqa: ANN401
@@ -259,7 +306,9 @@ def _with_engine(series: PhaseSeries, plan: Plan, plans: list[Plan],
                                     weights=series.time_weight,
                                     dose_std_gy=[r.dose_std_gy for r in results])
     voxel = _voxel_way(series, density, [p[1] for p in pairs])
-    return absolute_dose4d(Dose4D(series, results, accumulated, voxel, None), plan)
+    return absolute_dose4d(Dose4D(series, results, accumulated, voxel, None, ct_materials={
+        "rule": "engine", "note": "the voxel engine chose the bodies' media (ompmc: PEGS "
+        "media by density)"}), plan)
 
 
 def _bodies(series: PhaseSeries, ct_hu: Image | None, phase_ct: list[Image] | None,
