@@ -103,7 +103,9 @@ def _nist_mixture(m: Material, e: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 @pytest.mark.parametrize("name", ["icrp_cortical_bone", "icrp_soft_tissue", "icrp_lung",
-                                  "icrp110_mineral_bone", "pmma", "polystyrene", "solid_water"])
+                                  "icrp110_mineral_bone", "icrp110_f_teeth", "icrp110_f_lung",
+                                  "icru46_cranium", "icru46_hydroxyapatite", "pmma", "polystyrene",
+                                  "solid_water"])
 def test_library_photon_data_match_nist_elemental_tables_mixed(name):
     if not NIST_DIR.exists():
         pytest.skip(f"NIST reference tables not found at {NIST_DIR} (../shared beside the checkout)")
