@@ -32,8 +32,9 @@
 
 Any other composition is a :class:`~tetdose.core.composition.Material` (plan.toml
 ``[materials.NAME]`` tables). The nominal density of each medium is the one its density effect is
-computed at; the lung media carry inflated lung's 0.26 g/cm³ (:data:`LUNG_NOMINAL_G_CM3`), not the
-1.05 g/cm³ of ICRU 44's tissue sample.
+computed at; ``lung`` and ``icrp_lung`` carry inflated lung's 0.26 g/cm³ (:data:`LUNG_NOMINAL_G_CM3`),
+not the 1.05 g/cm³ of ICRU 44's tissue sample (ICRP 110's lungs their phantoms' 0.382 and 0.385
+g/cm³, ICRU 46's inflated lung 0.26 g/cm³, as tabulated).
 
 Density classes (Schneider et al. 2000, Phys. Med. Biol. 45:459, style): a voxel or tetrahedron
 without a region label gets the material of the class its mass density falls in. Schneider bins
