@@ -1,4 +1,4 @@
-"""njit Woodcock (delta) tracking of photons through the mesh in dose mode.
+"""njit Woodcock (delta) tracking of photons through the mesh (or a voxel-only grid) in dose mode.
 
 **Method** (Woodcock, Murphy, Hemmings & Longworth, ANL-7050, 1965; for unstructured geometry
 Leppänen, Ann. Nucl. Energy 37:715, 2010). Inside the mesh's point-location box B (its
@@ -28,6 +28,12 @@ Exp(1) variable by the memoryless exponential, and continues exactly as the walk
 or through vacuum to the grid. A voxel flight that reaches the mesh (its triangle lists) hands
 the photon back to Woodcock tracking at the hit point with the optical depth left. B is convex
 and holds the mesh, so a photon that left B never meets the mesh again along that line.
+
+**Voxel-only worlds** (no mesh) use the same flight with the grid as the box B and the voxel
+holding each tentative point as its cell: ``ρ_max,m`` is then the largest density of material m
+over the voxels (a water phantom: μ̂ = μ, every tentative collision is real, one step per
+flight instead of a voxel walk; a CT: the densest material bounds the rest). Leaving the grid,
+the photon escapes (nothing lies beyond it).
 
 Electrons keep walking the tets (they need the mass thickness along their path); kerma mode
 keeps the walking flight (its track-length estimator needs every segment).
@@ -72,7 +78,10 @@ def woodcock_box(wg, xs, ln_mu_hat, e, x, y, z, u, v, w, tau, state, counts):
     g = wg.tet
     m_tets = g.planes.shape[0]
     has_voxels = wg.vox.density.shape[0] > 0
-    _, t_box = box_interval(g.loc_lo, g.loc_cell, g.loc_n, x, y, z, u, v, w)
+    if m_tets > 0:
+        _, t_box = box_interval(g.loc_lo, g.loc_cell, g.loc_n, x, y, z, u, v, w)
+    else:  # a voxel-only world: the box is the grid
+        _, t_box = box_interval(wg.vox.lo, wg.vox.cell, wg.vox.n, x, y, z, u, v, w)
     t_box = max(t_box, 0.0)
     i, f = grid_position(xs, e)
     mu_hat = majorant_at(ln_mu_hat, i, f)  # [1/cm]
@@ -88,7 +97,7 @@ def woodcock_box(wg, xs, ln_mu_hat, e, x, y, z, u, v, w, tau, state, counts):
         t += tau * MM_PER_CM / mu_hat
         steps += 1
         px, py, pz = x + t * u, y + t * v, z + t * w
-        cell = locate_point(g, px, py, pz)
+        cell = locate_point(g, px, py, pz) if m_tets > 0 else -1
         rho = 0.0
         if cell >= 0:
             rho = max(density_at(g, cell, px, py, pz), 0.0)
@@ -118,10 +127,10 @@ def flight_delta(wg, xs, ln_mu_hat, e, cell, x, y, z, u, v, w, tau, state, tally
     m_tets = wg.tet.planes.shape[0]
     has_voxels = wg.vox.density.shape[0] > 0
     for _ in range(MAX_SWITCHES):
-        if cell < m_tets:
+        if cell < m_tets or m_tets == 0:
             state, out, cell, x, y, z, tau = woodcock_box(wg, xs, ln_mu_hat, e, x, y, z, u, v,
                                                           w, tau, state, counts)
-            if out == INTERACTS:
+            if out == INTERACTS or m_tets == 0:
                 return state, out, cell, x, y, z
             cell = voxel_cell_at(wg, x, y, z) if has_voxels else -1
             if cell < 0 and has_voxels:  # outside the grid: vacuum until it, if it lies ahead

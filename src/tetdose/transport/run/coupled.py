@@ -20,6 +20,8 @@ from functools import lru_cache
 import numpy as np
 
 from tetdose._typing import FloatArray
+from tetdose.transport.geometry._world import WorldGeometry
+from tetdose.transport.geometry.tets import material_density_max
 from tetdose.transport.physics.electron_xs import ElectronTables, build_electron_tables
 from tetdose.transport.physics.xs import CrossSections
 from tetdose.transport.run._dose_batches import run_world_dose
@@ -68,6 +70,15 @@ def photon_majorant(xs: CrossSections, rho_max_g_cm3: FloatArray) -> FloatArray:
     return out
 
 
+def majorant_densities(geom: WorldGeometry, n_materials: int) -> FloatArray:
+    """(n_materials,) ρ_max,m [g/cm³] of the photons' majorant: over the mesh's vertices and the
+    voxels meeting its point-location box (``TetGeometry.rho_max``), or over every voxel of a
+    voxel-only world (:mod:`tetdose.transport.history._delta`)."""
+    if geom.tet.planes.shape[0] > 0:
+        return geom.tet.rho_max
+    return material_density_max(geom.vox.material, geom.vox.density, n_materials)
+
+
 @lru_cache(maxsize=8)
 def _tables(names: tuple[str, ...], cutoff_mev: float, photon_cutoff_mev: float,
             f_loss: float) -> tuple[ElectronTables, FloatArray]:
@@ -100,8 +111,8 @@ def dose_rows_call(job, xs: CrossSections, settings: TransportSettings,  # noqa:
     their rows (arrays of ``b_stop − b_start`` rows)."""
     et, sig_hat = electron_tables(job.names, settings)
     ps = job.particles
-    ln_mu_hat = (photon_majorant(xs, job.geom.tet.rho_max)
-                 if settings.photon_tracking == "woodcock" and job.n_tets > 0 else np.zeros(0))
+    ln_mu_hat = (photon_majorant(xs, majorant_densities(job.geom, len(job.names)))
+                 if settings.photon_tracking == "woodcock" else np.zeros(0))
     qmc = qmc_rows(settings, b_start, b_stop)
     scheme = SPLITTING_SCHEMES.index(settings.splitting_scheme)
 

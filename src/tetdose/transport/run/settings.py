@@ -18,14 +18,14 @@ copy's site, scaled to the local medium (XVMC's electron history repetition;
 E: an electron of at most E starting in a voxel or tet it cannot leave deposits its energy there
 at once (EGSnrc's ESAVE; only the hard bremsstrahlung it would have radiated stays too; 0: off).
 The estimator is ``"track_length"`` (kerma default) or ``"analog"``; dose mode scores the analog
-energy deposition only. ``photon_tracking``: dose mode moves photons through the mesh by
-Woodcock (delta) tracking (``"woodcock"``, default: a majorant, point location, no tet walk;
-:mod:`tetdose.transport.history._delta`) or walks them tet by tet as kerma mode does
-(``"walk"``); both give the same dose within statistics (different random numbers). Kerma mode
-always walks (its track-length estimator needs every segment). ``quasi_random``: the source
-particles' position (or direction), spectrum line and beam come from randomized Sobol points,
-independently scrambled per batch (:mod:`tetdose.transport.sources.quasi`); off: bit for bit
-the pseudo-random sources.
+energy deposition only. ``photon_tracking``: dose mode moves photons through the mesh (and
+through the grid of a voxel-only world) by Woodcock (delta) tracking (``"woodcock"``, default:
+a majorant, point location, no tet or voxel walk; :mod:`tetdose.transport.history._delta`) or
+walks them cell by cell as kerma mode does (``"walk"``); both give the same dose within
+statistics (different random numbers). Kerma mode always walks (its track-length estimator
+needs every segment). ``quasi_random``: the source particles' position (or direction),
+spectrum line and beam come from randomized Sobol points, independently scrambled per batch
+(:mod:`tetdose.transport.sources.quasi`); off: bit for bit the pseudo-random sources.
 """
 
 from __future__ import annotations
