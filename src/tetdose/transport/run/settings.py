@@ -93,7 +93,7 @@ class TransportSettings:
     range_rejection_mev: float = RANGE_REJECTION_MEV
     #: Dose mode's photon flights through the mesh: "woodcock" (delta tracking) or "walk".
     photon_tracking: str = "woodcock"
-    #: "medium" (D_m) or "water" (D_w = D_m · s_w,m, :mod:`tetdose.transport.physics.dose_to_water`).
+    #: "medium" (D_m) or "water" (D_w = D_m · s_w,m per cell, :mod:`tetdose.transport.run.water`).
     dose_to: str = "medium"
     #: Source particles from scrambled Sobol points (one independent scramble per batch).
     quasi_random: bool = False
