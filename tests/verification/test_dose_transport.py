@@ -112,7 +112,8 @@ def test_dose_mode_same_seed_same_bits_with_one_or_two_threads(tmp_path):
         plan = Plan(SLAB_PLAN.beams + CHARGED,
                     volume_sources=(VolumeSource("positron", (1.0,)),))
         r = simulate(World(mesh=mesh, density=ct), plan,
-                     TransportSettings(3000, 8, 9, electron_cutoff_mev=0.05), progress=False)
+                     TransportSettings(3000, 8, 9, electron_cutoff_mev=0.05, dose_to="water"),
+                     progress=False)  # D_w: the tracked dose-to-water sums in batch order too
     """)
 
 

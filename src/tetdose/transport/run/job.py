@@ -392,7 +392,7 @@ def assemble(job: TransportJob, on_grid: MeshOnGrid | None, plan: Plan,
     """DoseResult from batch rows in batch order (tets moved back to mesh order); ``per_batch``:
     the histories of the rows when not all of the settings' batches ran."""
     energy = np.concatenate([r[0] for r in rows])
-    sums = sum(r[3].sum(axis=0) for r in rows)
+    sums = np.concatenate([r[3] for r in rows]).sum(axis=0)  # batch order: any thread count
     if job.order is not None:
         energy[:, job.order] = energy[:, :job.n_tets].copy()
         if sums.shape[1] > 0:
