@@ -98,14 +98,21 @@ def test_fluence_averaged_ratio_of_a_homogeneous_world_agrees_with_siebers_and_t
 def test_every_electron_path_adds_its_energy_to_the_medium_sum(settings):
     """B sums wt·s·L_m over the steps (≈ the continuous loss) plus the track ends (part of the
     cut-off energy): analog, replayed (repeat) and range-rejected tracks alike; their
-    fluence-averaged ratios agree with the table."""
+    fluence-averaged ratios agree with the table; the sums change no particle's path."""
     world = _world("voxels", lambda z: np.full(np.shape(z), 1.85), lambda z: np.ones(np.shape(z)))
     e, w = named_spectrum("6MV")
     beam = PhotonSource("parallel", [0.0, 0.0, -40.0], [0, 0, 1], energies_mev=e, line_weights=w,
                         field_mm=[30.0, 30.0])
-    st = TransportSettings(600, 2, 7, dose_to="water", **settings)
-    job, _ = build_job(world, Plan((beam,), materials={1: "icrp_cortical_bone"}), st)
-    _, ledger, _, sums = run_batches(job, cross_sections(job, st), st, 0, 2)
+    plan = Plan((beam,), materials={1: "icrp_cortical_bone"})
+    rows = {}
+    for to in ("medium", "water"):
+        st = TransportSettings(600, 2, 7, dose_to=to, **settings)
+        job, _ = build_job(world, plan, st)
+        rows[to] = run_batches(job, cross_sections(job, st), st, 0, 2)
+    assert rows["medium"][3].size == 0  # dose to medium tallies no sums and the same particles
+    for medium, water in zip(rows["medium"][:3], rows["water"][:3], strict=True):
+        np.testing.assert_array_equal(medium, water)
+    _, ledger, _, sums = rows["water"]
     a, b = sums.sum(axis=(0, 2))
     led = ledger.sum(axis=0)
     assert 0.99 * led[L_E_DEPOSITED] < b < led[L_E_DEPOSITED] + led[L_E_CUTOFF]
