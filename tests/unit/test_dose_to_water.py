@@ -165,3 +165,19 @@ def test_vtu_flag_and_records_say_which_dose_it_is(tmp_path):
     assert require_same(None, "water", "x") == "water"
     with pytest.raises(OptionError, match="x is dose to water, not to medium"):
         require_same("medium", "water", "x")
+
+
+def test_hybrid_combined_dose_to_water_is_the_combined_dose_to_medium_times_its_ratio():
+    """Mesh (bone) inside a CT (water-like soft tissue): on the CT grid, D_w = D_m · s_w,m with
+    s_w,m of each voxel the energy-weighted one of the voxel and the tets overlapping it."""
+    grid = grid_for([-20, -20, -20], [20, 20, 20], [8.0, 8.0, 8.0])
+    mesh = box_mesh([-10, -10, -10], [10, 10, 10], (2, 2, 2))
+    mesh = TetMesh(mesh.points_mm, mesh.tets, np.full(mesh.n_tets, 2, np.int32),
+                   {"density": np.full(mesh.n_points, 1.85)})
+    world = World(mesh=mesh, density=density_image(grid, lambda x, y, z: np.full(x.shape, 1.0)))
+    dm, dw = (_run(world, {2: "icrp_cortical_bone"}, to) for to in ("medium", "water"))
+    cm, cw = dm.combined(), dw.combined()
+    hit = cm.dose_gy > 0
+    assert hit.sum() > 5 and np.ptp(cw.water_ratio[hit]) > 0.05  # bone and soft tissue voxels
+    np.testing.assert_allclose(cw.dose_gy[hit], cm.dose_gy[hit] * cw.water_ratio[hit], rtol=1e-12)
+    np.testing.assert_array_equal(dw.voxel_part().water_ratio, dw.water_ratio[dw.n_tets:])
