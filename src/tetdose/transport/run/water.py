@@ -1,11 +1,13 @@
 """Dose to water of a run's cells (``dose_to="water"``): D_w = D_m · s_w,m per cell.
 
-A dose-mode run tallies, per cell, the Spencer–Attix sums A = Σ wt·s·L_w(Ē) (+ track ends) and
-B = Σ wt·s·L_m(Ē) over the electron steps that crossed it
+A dose-mode run tallies, per cell, the Spencer–Attix sums A = Σ wt·s·L_w(Ē) and
+B = Σ wt·s·L_m(Ē) over the electron steps that crossed it, plus the track-end terms
 (:mod:`tetdose.transport.history._electron`; Siebers, Keall, Nahum & Mohan, PMB 45:983, 2000),
-so s_w,m = A/B is the ratio averaged over the fluence that cell actually tracked. Cells no
-electron crossed (B = 0), the ompMC engine and kerma-free imports take the per-medium ratio of
-:mod:`tetdose.transport.physics.dose_to_water` (the documented fallback).
+so s_w,m = A/B is the ratio averaged over the fluence that cell actually tracked; it converts
+all of the cell's energy (also that of electrons born below the cut-off and photons below
+theirs, which add to neither sum). Cells no electron crossed (B = 0) and the ompMC engine (no
+tracked fluence) take the per-medium ratio of :mod:`tetdose.transport.physics.dose_to_water`
+(the documented fallback).
 """
 
 from __future__ import annotations
