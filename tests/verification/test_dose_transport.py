@@ -28,6 +28,7 @@ from tetdose.transport.history._electron import (
     N_COUNTS_DOSE,
     N_LEDGER_DOSE,
     STACK_COLUMNS,
+    WaterTally,
     electron_track,
 )
 from tetdose.transport.physics.electron_xs import (
@@ -111,7 +112,8 @@ def test_dose_mode_same_seed_same_bits_with_one_or_two_threads(tmp_path):
         plan = Plan(SLAB_PLAN.beams + CHARGED,
                     volume_sources=(VolumeSource("positron", (1.0,)),))
         r = simulate(World(mesh=mesh, density=ct), plan,
-                     TransportSettings(3000, 8, 9, electron_cutoff_mev=0.05), progress=False)
+                     TransportSettings(3000, 8, 9, electron_cutoff_mev=0.05, dose_to="water"),
+                     progress=False)  # D_w: the tracked dose-to-water sums in batch order too
     """)
 
 
@@ -143,8 +145,9 @@ def _one_track(wg, et, e, cell, x, y, z, w, n_cells):
     stack = np.empty((8, STACK_COLUMNS))
     bcell, bcol = np.empty(256, np.intp), np.empty(256)
     sig_hat = np.zeros((1, 2, et.stopping.shape[2]))
+    dw = WaterTally(np.zeros((2, 0)), np.zeros(0), np.zeros(0))
     electron_track(wg, et, sig_hat, 0, e, cell, x, y, z, 0.0, 0.0, w, 1.0, seed_for(1, 0, 0), 0.25,
-                   tally, ledger, counts, stack, 0, bcell, bcol)
+                   tally, ledger, counts, stack, 0, bcell, bcol, dw)
     return tally, ledger
 
 

@@ -383,9 +383,14 @@ def summary_line(result: Any, world: str, outputs: list[str], path: Path,  # noq
     record = result.record(tet_volume_mm3)
     unit = record["units"]["dose"]
     near = record["near_max_dose_gy"]
+    water = record.get("dose_to_water", {})
+    to_water = (f"; dose to water per cell from the tracked electron fluence "
+                f"({water['cells_fallback']} of {water['cells_dosed']} cells with dose by the "
+                "per-medium fallback)" if "cells_fallback" in water else "")
     return (f"dose ({world}): {result.n_histories} histories in {result.wall_s:.1f} s; "
             f"near-max (D0.1cm³ in tissue) {near:.4g} {unit}; absorbed {result.absorbed_mev:.4g} MeV and "
-            f"escaped {result.escaped_mev:.4g} MeV per particle → {', '.join(outputs)}, {path}")
+            f"escaped {result.escaped_mev:.4g} MeV per particle{to_water} → {', '.join(outputs)}, "
+            f"{path}")
 
 
 def _run_ompmc(args: argparse.Namespace, plan: Any, settings: Any, mesh: Any, density: Any,

@@ -99,9 +99,9 @@ from tetdose.transport.run.job import (
     assign_materials,
     plan_media,
     warn_target_missed,
-    water_factors,
 )
 from tetdose.transport.run.settings import TransportSettings
+from tetdose.transport.run.water import water_factors
 from tetdose.transport.sources.particles import source_particles
 
 #: PEGS4 files shipped in the ompmc wheel (AE = 0.521 / 0.700 MeV total electron energy).

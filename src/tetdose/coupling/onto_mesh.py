@@ -127,6 +127,6 @@ def result_onto_mesh(result: DoseResult, density: Image, mesh: TetMesh, *,
     energy = np.asarray((share @ result.energy_per_batch_mev.T).T)
     return replace(result, energy_per_batch_mev=np.ascontiguousarray(energy),
                    mass_g=voxel_mass_in_tets_g(density, share), geometry="mesh", grid=None,
-                   n_tets=mesh.n_tets, on_grid=None,
+                   n_tets=mesh.n_tets, on_grid=None, water_ratio=None,
                    extra={**result.extra, "dose_on_mesh": "voxel energy split by exact "
                           "tet-voxel overlaps over the voxel mass in each tet"})

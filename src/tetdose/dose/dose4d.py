@@ -139,7 +139,9 @@ class Dose4D:
                         "near_max_dose_gy": r.mesh_part().near_max_dose_gy(
                             self.series.mesh(k).volumes_mm3),
                         "mesh_voxel_switches": int(r.counts_per_batch[:, 5].sum()),
-                        **({"target": r.extra["target"]} if "target" in r.extra else {})}
+                        **({"target": r.extra["target"]} if "target" in r.extra else {}),
+                        **({"dose_to_water": r.extra["dose_to_water"]}
+                           if "dose_to_water" in r.extra else {})}
                        for k, r in enumerate(self.results)],
             "accumulated_near_max_dose_gy": near_max_gy(
                 self.accumulated.dose_gy, ref_cm3, self.accumulated.mass_g / ref_cm3),

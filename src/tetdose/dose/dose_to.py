@@ -1,10 +1,13 @@
 """What a dose is: dose to medium (D_m, what Monte Carlo transports and scores) or dose to water
-(D_w = D_m · s_w,m, :mod:`tetdose.transport.physics.dose_to_water`), and where outputs say so.
+(D_w = D_m · s_w,m, :mod:`tetdose.transport.run.water`), and where outputs say so.
 
 Every output records it (AAPM TG-105: a Monte Carlo system must state which it reports):
 
 - JSON run records and ``summary.json``: ``"dose_to": "medium" | "water"`` (with
-  ``"dose_to_water"``: the method and the ratio s_w,m of each medium, for D_w);
+  ``"dose_to_water"``: the method — per cell from the tracked electron fluence,
+  :mod:`tetdose.transport.run.water`, or per medium — the ratio s_w,m of each medium, and the
+  cells that fell back to the per-medium ratio, for D_w); a transport run's VTU also has the
+  per-cell ratios (cell array ``s_w_m``);
 - VTU meshes: the cell array ``dose_to_water`` (int8, 1 where the ``dose`` arrays are D_w, 0 for
   D_m), read back by :func:`recorded_dose_to`;
 - RT Dose: DoseComment and SeriesDescription (:func:`tetdose.dicom.rt_dose.write_rt_dose`).

@@ -85,6 +85,7 @@ from tetdose.transport.history._electron import (
     push,
     push_weighted,
     stop_charged,
+    water_end,
 )
 from tetdose.transport.history._photon import (
     C_LOST,
@@ -270,14 +271,15 @@ def wall_column(wg, cell, x, y, z):
 @kernel
 def coupled_history(wg, xs, ln_mu_hat, et, sig_hat, sp, e, cell, x, y, z, u, v, w, state, kin,
                     p_cut, f_loss, wt, scheme, rr_mev, tally, ledger, counts, stack, bcell, bcol,
-                    trk, key):
+                    trk, key, dw):
     """Follow one source particle (species ``sp``, energy [MeV], already in global ``cell``,
     statistical weight ``wt``: 1, or 1/n_split for a split photon, whose electrons ``scheme``
     rouletted, followed with weight wt, or replayed from the track buffer ``trk``/``key``
     (:mod:`._repeat`; ``kin`` the copies' shared stream)) and every secondary to the end;
     electrons of at most ``rr_mev`` [MeV] are range-rejected (module docstring; 0: never);
     photons are Woodcock-tracked through the mesh with the majorant ``ln_mu_hat`` (empty: they
-    walk it). Returns the RNG state."""
+    walk it); ``dw`` the dose-to-water sums of the e± tracks
+    (:class:`~tetdose.transport.history._electron.WaterTally`). Returns the RNG state."""
     n_stack = 0
     source = True
     while True:
@@ -290,16 +292,18 @@ def coupled_history(wg, xs, ln_mu_hat, et, sig_hat, sp, e, cell, x, y, z, u, v, 
               and range_of(et, cell_material(wg, cell), ELECTRON, e) * MM_PER_CM
               < wall_column(wg, cell, x, y, z)):
             tally[cell] += e * wt  # range rejection: the track cannot leave this voxel
+            if dw.a.shape[0] > 0:
+                water_end(dw, et, cell_material(wg, cell), ELECTRON, e, wt, cell)
             ledger[L_E_CUTOFF] += e * wt
             counts[C_E_TRACKS] += 1
         elif sp == REPLAY:
             state, n_stack = repeat_electron(wg, et, sig_hat, e, cell, x, y, z, u, v, w, wt,
                                              state, f_loss, tally, ledger, counts, stack, n_stack,
-                                             bcell, bcol, trk, key)
+                                             bcell, bcol, trk, key, dw)
         else:
             state, n_stack = electron_track(wg, et, sig_hat, sp, e, cell, x, y, z, u, v, w, wt,
                                             state, f_loss, tally, ledger, counts, stack, n_stack,
-                                            bcell, bcol)
+                                            bcell, bcol, dw)
         if n_stack == 0:
             return state
         n_stack -= 1

@@ -50,9 +50,22 @@ annihilation in flight and at rest) play Russian roulette — each survives with
 then carries weight 1, else it is killed (ledger L_ROULETTE: + w·k killed, − (1 − w)·k
 survivor). E[weight × energy] is the analog one for every particle, so every tally is unbiased.
 A track of weight 1 draws no roulette number: the analog track bit for bit.
+
+**Dose to water** (Spencer–Attix cavity theory over the fluence each cell tracks; Siebers,
+Keall, Nahum & Mohan, PMB 45:983, 2000; Nahum, PMB 23:24, 1978): with a :class:`WaterTally` of
+non-empty sums, every step of mass thickness s_c [g/cm²] in cell c (the buffered cells of the
+step, medium m) adds A_c += wt·s_c·L_w(Ē) and B_c += wt·s_c·L_m(Ē), Ē = (E + E_end)/2 and L
+the tables' restricted total stopping power (collision below Δ plus radiative below k_c, the
+one the tracks lose energy by); a track end (an e± stopping below Δ, or a range-rejected
+track) of kinetic energy T adds the track-end term B_c += wt·T, A_c += wt·T·L_w(T)/L_m(T).
+Then s_w,m(c) = A_c/B_c. Water's row is a separate table on the same grid, looked up the same
+way, so in water A_c == B_c bitwise. Empty sums (dose to medium): nothing is looked up.
 """
 
 import math
+from typing import NamedTuple
+
+import numpy as np
 
 from tetdose._constants import MM_PER_CM
 from tetdose._jit import kernel
@@ -95,6 +108,40 @@ STACK_COLUMNS = 10
 #: Steps in a row that move no mass thickness before the track is counted lost.
 MAX_IDLE_STEPS = 1000
 _TWO_PI = 2.0 * math.pi
+
+
+class WaterTally(NamedTuple):
+    """Spencer–Attix sums of a batch (module docstring): ``stopping`` (2, n_e) water's L/ρ
+    [MeV cm²/g] on the electron tables' grid; ``a``, ``b`` (n_cells,) Σ wt·s·L_w and Σ wt·s·L_m
+    [MeV] (size 0: not tallied)."""
+
+    stopping: np.ndarray
+    a: np.ndarray
+    b: np.ndarray
+
+
+@kernel
+def water_step(dw, et, m, sp, e_mid, wt, bcell, bcol, nb):
+    """Add one step of mean energy ``e_mid`` [MeV] in medium m, over the ``nb`` buffered cells
+    with columns ``bcol`` [mm·g/cm³], to the sums ``dw`` (module docstring)."""
+    i, f = electron_position(et, e_mid)
+    lw = (1.0 - f) * dw.stopping[sp, i] + f * dw.stopping[sp, i + 1]
+    lm = (1.0 - f) * et.stopping[m, sp, i] + f * et.stopping[m, sp, i + 1]
+    for k in range(nb):
+        s = wt * bcol[k] / MM_PER_CM
+        dw.a[bcell[k]] += s * lw
+        dw.b[bcell[k]] += s * lm
+
+
+@kernel
+def water_end(dw, et, m, sp, e, wt, cell):
+    """Add the track-end term of kinetic energy ``e`` [MeV] deposited at once in ``cell`` of
+    medium m to the sums ``dw`` (module docstring)."""
+    i, f = electron_position(et, e)
+    lw = (1.0 - f) * dw.stopping[sp, i] + f * dw.stopping[sp, i + 1]
+    lm = (1.0 - f) * et.stopping[m, sp, i] + f * et.stopping[m, sp, i + 1]
+    dw.a[cell] += wt * e * (lw / lm)
+    dw.b[cell] += wt * e
 
 
 @kernel
@@ -239,17 +286,20 @@ def hard_event(et, m, sp, e, s_hat, x, y, z, u, v, w, cell, wt, state, tally, le
 
 @kernel
 def electron_track(wg, et, sig_hat, sp, e, cell, x, y, z, u, v, w, wt, state, f_loss, tally,
-                   ledger, counts, stack, n_stack, bcell, bcol):
+                   ledger, counts, stack, n_stack, bcell, bcol, dw):
     """Follow one e⁻ (sp = 0) or e⁺ (sp = 1) of kinetic energy ``e`` [MeV] and statistical
     weight ``wt`` from global ``cell`` to its end (module docstring); its secondaries go on the
-    stack. Returns (state, n_stack)."""
+    stack; ``dw`` the dose-to-water sums (:class:`WaterTally`). Returns (state, n_stack)."""
     e_cut = et.cutoff_mev
     rest = 2.0 * ELECTRON_MASS_MEV if sp == POSITRON else 0.0
     counts[C_E_TRACKS] += 1
     entry = -1
     idle = 0
+    water = dw.a.shape[0] > 0
     while True:
         if e <= e_cut:
+            if water:
+                water_end(dw, et, cell_material(wg, cell), sp, e, wt, cell)
             return stop_charged(state, sp, e, x, y, z, cell, wt, tally, ledger, counts, stack,
                                 n_stack)
         m = cell_material(wg, cell)
@@ -287,6 +337,8 @@ def electron_track(wg, et, sig_hat, sp, e, cell, x, y, z, u, v, w, wt, state, f_
             e_end = e
         e_end = min(max(e_end, 0.0), e)
         deposit_step((e - e_end) * wt, bcell, bcol, nb, col_done, tally, cell)
+        if water:
+            water_step(dw, et, m, sp, 0.5 * (e + e_end), wt, bcell, bcol, nb)
         ledger[L_E_DEPOSITED] += (e - e_end) * wt
         counts[C_E_STEPS] += 1
         e = e_end

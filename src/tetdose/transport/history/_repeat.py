@@ -28,7 +28,9 @@ stopping-power ratio at the step's mean energy (the same energy loss), and its d
 (any density: mass thicknesses) the replay is the analog track exactly; elsewhere the scaling is
 XVMC's approximation, tested against the analog dose in a lung slab. Positrons are never
 replayed. A track longer than the buffer deposits its remaining energy where the replay stops
-(counted with the stack overflows).
+(counted with the stack overflows). The dose-to-water sums (``dw``,
+:class:`~tetdose.transport.history._electron.WaterTally`) take every replayed piece in its own
+medium at the step's mean energy, and the replayed track's end.
 """
 
 import math
@@ -49,6 +51,8 @@ from tetdose.transport.history._electron import (
     roulette_photon,
     sigma_majorant,
     stop_charged,
+    water_end,
+    water_step,
 )
 from tetdose.transport.history._photon import C_LOST, C_STACK_FULL, L_LOST
 from tetdose.transport.history._segment import SEG_DONE, SEG_ESCAPED, SEG_LOST, segment
@@ -143,7 +147,7 @@ def scaled_cos(et, m0, m, e, mu):
 
 @kernel
 def replay_move(wg, et, m0, e_mid, col0, de, wt, cell, entry, x, y, z, u, v, w, tally, ledger,
-                counts, bcell, bcol):
+                counts, bcell, bcol, dw):
     """Move the reference column ``col0`` [mm·g/cm³ of m₀] straight through the world, each
     piece in medium m scaled by 1/f_c, and deposit wt × ``de`` along it in proportion to the
     reference column: (outcome, cell, entry, x, y, z, energy deposited [MeV, unweighted])."""
@@ -158,6 +162,8 @@ def replay_move(wg, et, m0, e_mid, col0, de, wt, cell, entry, x, y, z, u, v, w, 
         part = de - dep if out == SEG_DONE or col0 <= 0.0 else min(de * done * f_c / col0,
                                                                    de - dep)
         deposit_step(part * wt, bcell, bcol, nb, done, tally, cell)
+        if dw.a.shape[0] > 0:
+            water_step(dw, et, m, ELECTRON, e_mid, wt, bcell, bcol, nb)
         ledger[L_E_DEPOSITED] += part * wt
         dep += part
         left -= done * f_c
@@ -171,7 +177,7 @@ def replay_move(wg, et, m0, e_mid, col0, de, wt, cell, entry, x, y, z, u, v, w, 
 
 @kernel
 def replay_track(wg, et, trk, n_rows, m0, e, cell, x, y, z, u, v, w, wt, state, tally, ledger,
-                 counts, stack, n_stack, bcell, bcol):
+                 counts, stack, n_stack, bcell, bcol, dw):
     """Replay the recorded electron track ``trk`` (sampled in m₀) from global ``cell`` along
     (u, v, w) with weight ``wt`` (module docstring): (state, n_stack)."""
     counts[C_E_TRACKS] += 1
@@ -184,13 +190,13 @@ def replay_track(wg, et, trk, n_rows, m0, e, cell, x, y, z, u, v, w, wt, state, 
             de1 = de * r[1] / (r[1] + r[4]) if r[1] + r[4] > 0.0 else 0.0
             out, cell, entry, x, y, z, dep = replay_move(wg, et, m0, e_mid, r[1], de1, wt, cell,
                                                          entry, x, y, z, u, v, w, tally, ledger,
-                                                         counts, bcell, bcol)
+                                                         counts, bcell, bcol, dw)
             if out == SEG_DONE:
                 mu = scaled_cos(et, m0, cell_material(wg, cell), e_mid, r[2])
                 u, v, w = rotate_direction(u, v, w, mu, r[3])
                 out, cell, entry, x, y, z, dep2 = replay_move(
                     wg, et, m0, e_mid, r[4], de - de1, wt, cell, -1, x, y, z, u, v, w, tally,
-                    ledger, counts, bcell, bcol)
+                    ledger, counts, bcell, bcol, dw)
                 dep += dep2
             counts[C_E_STEPS] += 1
             if out == SEG_ESCAPED:
@@ -202,8 +208,8 @@ def replay_track(wg, et, trk, n_rows, m0, e, cell, x, y, z, u, v, w, wt, state, 
                 return state, n_stack
             e = r[5]
         elif kind == R_DELTA:
-            du, dv, dw = rotate_direction(u, v, w, r[2], r[3])
-            n_stack = push_weighted(stack, n_stack, ELECTRON, r[1], x, y, z, du, dv, dw, cell,
+            du, dv, dz = rotate_direction(u, v, w, r[2], r[3])
+            n_stack = push_weighted(stack, n_stack, ELECTRON, r[1], x, y, z, du, dv, dz, cell,
                                     wt, tally, ledger, counts)
         elif kind == R_PHOTON:
             ku, kv, kw = rotate_direction(u, v, w, r[2], r[3])
@@ -216,19 +222,22 @@ def replay_track(wg, et, trk, n_rows, m0, e, cell, x, y, z, u, v, w, wt, state, 
                 entry = -1
     if e > et.cutoff_mev:
         counts[C_STACK_FULL] += 1  # the track outgrew the buffer: the rest stays here
+    if dw.a.shape[0] > 0:
+        water_end(dw, et, cell_material(wg, cell), ELECTRON, e, wt, cell)
     return stop_charged(state, ELECTRON, e, x, y, z, cell, wt, tally, ledger, counts, stack,
                         n_stack)
 
 
 @kernel
 def repeat_electron(wg, et, sig_hat, e, cell, x, y, z, u, v, w, wt, state, f_loss, tally, ledger,
-                    counts, stack, n_stack, bcell, bcol, trk, key):
+                    counts, stack, n_stack, bcell, bcol, trk, key, dw):
     """An electron of a split photon's copy: the track in ``trk`` if ``key`` says it is this
     electron's (same T and direction: the copies share their interaction), else a new one
-    sampled in the medium here; then replayed from here (module docstring)."""
+    sampled in the medium here; then replayed from here (module docstring; ``dw`` the
+    dose-to-water sums)."""
     if not (key[0] == e and key[1] == u and key[2] == v and key[3] == w):
         m0 = cell_material(wg, cell)
         state, n_rows = record_track(et, sig_hat, m0, e, state, f_loss, trk)
         key[0], key[1], key[2], key[3], key[4], key[5] = e, u, v, w, m0, n_rows
     return replay_track(wg, et, trk, int(key[5]), int(key[4]), e, cell, x, y, z, u, v, w, wt,
-                        state, tally, ledger, counts, stack, n_stack, bcell, bcol)
+                        state, tally, ledger, counts, stack, n_stack, bcell, bcol, dw)

@@ -76,7 +76,9 @@ class DoseResult:
     columns (:data:`LEDGER_KEYS_DOSE`, :data:`COUNT_KEYS_DOSE`; lost counts every particle);
     ``extra["physics"]`` says which the dose is.
     ``geometry``: "mesh", "voxel" or "hybrid"; ``n_tets`` leading cells are tetrahedra;
-    ``on_grid`` (hybrid only) the mesh's overlap pairs with the grid, for :meth:`combined`.
+    ``on_grid`` (hybrid only) the mesh's overlap pairs with the grid, for :meth:`combined`;
+    ``water_ratio`` (n_cells,) the s_w,m each cell's energy was multiplied by (dose to water
+    from the tracked electron fluence, ``extra["dose_to_water"]``), else None.
     """
 
     energy_per_batch_mev: FloatArray
@@ -94,6 +96,7 @@ class DoseResult:
     extra: dict[str, Any] = field(default_factory=dict)
     n_tets: int = 0
     on_grid: MeshOnGrid | None = None
+    water_ratio: FloatArray | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "extra", FrozenExtra(self.extra))
@@ -225,7 +228,8 @@ class DoseResult:
         return replace(self, energy_per_batch_mev=self.energy_per_batch_mev[:, cells],
                        mass_g=self.mass_g[cells], geometry=geometry, grid=grid,
                        n_tets=self.n_tets if geometry == "mesh" else 0, on_grid=None,
-                       extra=dict(self.extra))
+                       extra=dict(self.extra),
+                       water_ratio=None if self.water_ratio is None else self.water_ratio[cells])
 
     def mesh_part(self) -> DoseResult:
         """The tetrahedra's cells (a mesh result; the ledger stays the whole run's)."""
@@ -255,17 +259,28 @@ class DoseResult:
         energy[:, cols] += (share.T @ self.energy_per_batch_mev[:, :m].T).T
         mass = self.mass_g[m:].copy()
         np.add.at(mass, og.voxel, og.mass_g)
+        ratio = self.water_ratio
+        if ratio is not None:  # energy-weighted: D_w / D_m of the combined energies
+            medium = self.energy_per_batch_mev.sum(axis=0) / ratio
+            e_m = medium[m:].copy()
+            e_m[cols] += share.T @ medium[:m]
+            e_w = energy.sum(axis=0)
+            ratio = np.divide(e_w, e_m, out=ratio[m:].copy(), where=e_m > 0)
         return replace(self, energy_per_batch_mev=energy, mass_g=mass, geometry="voxel",
-                       n_tets=0, on_grid=None, extra=dict(self.extra))
+                       n_tets=0, on_grid=None, extra=dict(self.extra), water_ratio=ratio)
 
     def to_mesh(self, mesh: TetMesh) -> TetMesh:
-        """``mesh`` with cell_data ``dose`` and ``dose_std`` [Gy] (the mesh part of a hybrid)."""
+        """``mesh`` with cell_data ``dose`` and ``dose_std`` [Gy] (the mesh part of a hybrid), and
+        ``s_w_m`` (:attr:`water_ratio`) for dose to water from the tracked fluence."""
         if self.n_tets != mesh.n_tets:
             raise GeometryMismatchError(
                 f"this {self.geometry} result has {self.n_tets} tetrahedra, the mesh has "
                 f"{mesh.n_tets}; pass the mesh the dose was computed on")
         part = self.mesh_part()
-        return mesh.with_data(cell_data={"dose": part.dose_gy, "dose_std": part.dose_std_gy})
+        data = {"dose": part.dose_gy, "dose_std": part.dose_std_gy}
+        if part.water_ratio is not None:
+            data["s_w_m"] = part.water_ratio
+        return mesh.with_data(cell_data=data)
 
     def to_images(self) -> tuple[Image, Image]:
         """(dose, dose_std) images [Gy] on the grid: a voxel run's, or a hybrid run's combined

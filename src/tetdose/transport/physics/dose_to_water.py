@@ -12,8 +12,13 @@ constant through a field for a given beam (within ~1 % outside build-up), so one
 medium and beam quality suffices; AAPM TG-105 (Chetty et al., Med. Phys. 34:4818, 2007) asks
 Monte Carlo systems to say which dose they report.
 
-**What tetdose does (per medium, beam-quality spectrum).** tetdose does not tally the electron
-fluence per cell; it weights by a documented beam-quality spectrum instead: the CSDA
+**What tetdose does.** A dose-mode run tallies, per tet and voxel, the Spencer–Attix form of
+this ratio over the electron fluence that cell actually tracks (restricted stopping powers
+L_Δ, the tracks' own, plus the track-end term; :mod:`tetdose.transport.history._electron`,
+:data:`TRACKED_METHOD`) and converts each cell by its own s_w,m. This module's per-medium
+ratio is the documented fallback: for cells no electron crossed, for the ompMC engine and
+imported doses. **The per-medium ratio (beam-quality spectrum)** weights by a documented
+spectrum instead of a tallied fluence: the CSDA
 slowing-down spectrum in water of the Compton electrons of a photon spectrum (default the 6 MV
 spectrum of :func:`tetdose.plan.spectra.named_spectrum`, Mohan et al. 1985),
 
@@ -46,7 +51,11 @@ T_MIN_MEV = 0.01
 N_GRID = 600
 #: The beam quality of the default spectrum.
 DEFAULT_QUALITY = "6MV"
-#: How tetdose converts, for records.
+#: How a dose-mode run converts, for records (:func:`tetdose.transport.run.job.assemble`).
+TRACKED_METHOD = ("per cell: Spencer-Attix s_w,m (restricted stopping powers, cut-off Δ, with "
+                  "the track-end term) over the electron fluence each tet and voxel tracked "
+                  "(Siebers et al. 2000); cells no electron crossed: the per-medium fallback")
+#: How the per-medium fallback converts, for records.
 METHOD = ("per medium: s_w,m averaged over the CSDA slowing-down spectrum in water of the "
           "Compton electrons of the {quality} photon spectrum (Siebers et al. 2000)")
 

@@ -24,6 +24,7 @@ from tetdose.transport.history._electron import (
     PHOTON,
     POSITRON,
     STACK_COLUMNS,
+    WaterTally,
 )
 from tetdose.transport.history._photon import C_MISSED, C_RELOCATIONS, L_ESCAPED, L_SOURCE
 from tetdose.transport.history._repeat import KEY_SIZE, TRACK_COLUMNS, TRACK_ROWS
@@ -64,7 +65,7 @@ def _sample_group(wg, src_g, src_e, src_p, vol, group_cdf, state, q):
 def run_world_dose(tet, vox, tri_lo, tri_n, tri_start, tri_items, xs, ln_mu_hat, et, sig_hat,
                    src_g, src_e, src_p, vol, group_cdf, seed, stream, n_hist, n_batches, b_start,
                    b_stop, o_from, o_to, qmc, photon_cutoff, f_loss, n_split, scheme, rr_mev,
-                   energy, ledger, counts):
+                   energy, ledger, counts, l_water, water):
     """Run histories ``o_from … o_to−1`` of batches ``b_start … b_stop−1`` (as
     :func:`~._batches.run_world`): batch b adds to row
     ``b − b_start`` of energy [MeV per cell], ledger (:data:`N_LEDGER_DOSE` columns) and counts
@@ -76,7 +77,9 @@ def run_world_dose(tet, vox, tri_lo, tri_n, tri_start, tri_items, xs, ln_mu_hat,
     their electrons (0 roulette, 1 followed with weight 1/n_split, 2 one track replayed for
     every copy, :mod:`tetdose.transport.history._repeat`), ``rr_mev`` the range
     rejection's largest electron energy [MeV] (0: off), ``qmc`` the quasi-random source points
-    (as :func:`~._batches.run_world`).
+    (as :func:`~._batches.run_world`); ``l_water`` (2, n_e) water's L/ρ on the grid of ``et``
+    and ``water`` (rows, 2, n_cells) the dose-to-water sums A, B of each batch row (n_cells 0:
+    not tallied; :class:`~tetdose.transport.history._electron.WaterTally`).
     """
     for b in prange(b_start, b_stop):
         wg = WorldGeometry(tet, vox, tri_lo, tri_n, tri_start, tri_items)
@@ -88,6 +91,7 @@ def run_world_dose(tet, vox, tri_lo, tri_n, tri_start, tri_items, xs, ln_mu_hat,
         led = ledger[b - b_start].copy()
         cnt = counts[b - b_start].copy()
         tally = energy[b - b_start]
+        dw = WaterTally(l_water, water[b - b_start, 0], water[b - b_start, 1])
         first, end = b * n_hist // n_batches, (b + 1) * n_hist // n_batches
         for h in range(min(first + o_from, end), min(first + o_to, end)):
             state = seed_for(seed, stream, h)
@@ -112,6 +116,7 @@ def run_world_dose(tet, vox, tri_lo, tri_n, tri_start, tri_items, xs, ln_mu_hat,
             for _ in range(copies):
                 state = coupled_history(wg, xs, ln_mu_hat, et, sig_hat, sp, e, cell, x, y, z,
                                         u, v, w, state, kin, photon_cutoff, f_loss, wt, sch,
-                                        rr_mev, tally, led, cnt, stack, bcell, bcol, trk, key)
+                                        rr_mev, tally, led, cnt, stack, bcell, bcol, trk, key,
+                                        dw)
         ledger[b - b_start, :] = led
         counts[b - b_start, :] = cnt

@@ -1,5 +1,5 @@
 """Dose mode's batch rows: electron tables, their hard-event majorant, the photons' Woodcock
-majorant, the coupled kernel call.
+majorant, water's stopping-power row for dose to water, the coupled kernel call.
 
 The majorant ``sig_hat[m, sp, i]`` bounds the total hard cross section σ = σ_δ + σ_brems
 (+ σ_annih for positrons) over every energy a step starting in grid interval i can reach: a step
@@ -23,6 +23,7 @@ from tetdose._typing import FloatArray
 from tetdose.transport.geometry._world import WorldGeometry
 from tetdose.transport.geometry.tets import material_density_max
 from tetdose.transport.physics.electron_xs import ElectronTables, build_electron_tables
+from tetdose.transport.physics.materials import Material, resolve_material
 from tetdose.transport.physics.xs import CrossSections
 from tetdose.transport.run._dose_batches import run_world_dose
 from tetdose.transport.run.settings import SPLITTING_SCHEMES, TransportSettings
@@ -95,6 +96,19 @@ def electron_tables(names: list[str], settings: TransportSettings
                    settings.max_energy_loss_fraction)
 
 
+def water_stopping(names: list[str | Material], settings: TransportSettings) -> FloatArray:
+    """(2, n_e) water's restricted total L/ρ [MeV cm²/g] on the grid of the run's electron
+    tables (a writeable copy): water's own row when it is one of ``names`` (so a water cell's
+    two dose-to-water sums are bitwise equal), else from water's tables built alike."""
+    et, _ = electron_tables(names, settings)
+    media = [resolve_material(m) for m in names]
+    water = resolve_material("water")
+    if water in media:
+        return np.array(et.stopping[media.index(water)])
+    alone, _ = electron_tables(["water"], settings)
+    return np.array(alone.stopping[0])
+
+
 def qmc_rows(settings: TransportSettings, b_start: int, b_stop: int) -> FloatArray:
     """Quasi-random source points of batches ``b_start … b_stop−1`` (the kernels' ``qmc``)."""
     first = b_start * settings.n_histories // settings.n_batches
@@ -105,11 +119,13 @@ def qmc_rows(settings: TransportSettings, b_start: int, b_stop: int) -> FloatArr
 
 def dose_rows_call(job, xs: CrossSections, settings: TransportSettings,  # noqa: ANN001
                    b_start: int, b_stop: int, energy: FloatArray, ledger: FloatArray,
-                   counts: np.ndarray) -> Callable[[int, int], None]:
+                   counts: np.ndarray, water: FloatArray) -> Callable[[int, int], None]:
     """``call(o_from, o_to)``: add histories ``o_from … o_to−1`` of each of the batches
     ``b_start … b_stop−1`` of a dose-mode :class:`~tetdose.transport.run.job.TransportJob` to
-    their rows (arrays of ``b_stop − b_start`` rows)."""
+    their rows (arrays of ``b_stop − b_start`` rows; ``water`` (rows, 2, n_cells) the
+    dose-to-water sums, n_cells 0 when not tallied)."""
     et, sig_hat = electron_tables(job.names, settings)
+    l_water = water_stopping(job.names, settings) if water.shape[2] > 0 else np.zeros((2, 0))
     ps = job.particles
     ln_mu_hat = (photon_majorant(xs, majorant_densities(job.geom, len(job.names)))
                  if settings.photon_tracking == "woodcock" else np.zeros(0))
@@ -122,5 +138,5 @@ def dose_rows_call(job, xs: CrossSections, settings: TransportSettings,  # noqa:
                        settings.n_histories, settings.n_batches, b_start, b_stop, o_from, o_to,
                        qmc, settings.energy_cutoff_mev, settings.max_energy_loss_fraction,
                        settings.photon_splitting, scheme, settings.range_rejection_mev, energy,
-                       ledger, counts)
+                       ledger, counts, l_water, water)
     return call

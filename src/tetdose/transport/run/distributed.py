@@ -46,7 +46,7 @@ from tetdose.transport.run.job import (
 )
 from tetdose.transport.run.settings import TransportSettings
 
-_Rows = tuple[FloatArray, FloatArray, IntArray]
+_Rows = tuple[FloatArray, FloatArray, IntArray, FloatArray]
 
 
 def _distributed() -> Any:  # noqa: ANN401 - module object

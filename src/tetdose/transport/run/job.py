@@ -27,8 +27,6 @@ from tetdose.transport.geometry.world import MeshOnGrid, World, world_arrays
 from tetdose.transport.history._electron import N_COUNTS_DOSE, N_LEDGER_DOSE
 from tetdose.transport.history._photon import C_MISSED, N_COUNTS, N_LEDGER
 from tetdose.transport.history.result import DoseResult
-from tetdose.transport.physics.dose_to_water import DEFAULT_QUALITY, water_to_medium_ratio
-from tetdose.transport.physics.dose_to_water import METHOD as DOSE_TO_WATER_METHOD
 from tetdose.transport.physics.materials import Material, resolve_material
 from tetdose.transport.physics.xs import (
     DENSITY_CLASS_MATERIALS,
@@ -39,6 +37,7 @@ from tetdose.transport.physics.xs import (
 from tetdose.transport.run._batches import run_world
 from tetdose.transport.run.coupled import dose_rows_call, qmc_rows
 from tetdose.transport.run.settings import TransportSettings
+from tetdose.transport.run.water import convert
 from tetdose.transport.sources._sample import SourceArrays
 from tetdose.transport.sources.arrays import E_MAX_MEV, source_arrays
 from tetdose.transport.sources.species import (
@@ -70,7 +69,9 @@ LONG_RUN_S = 600.0
 #: A run estimated to take longer than this [s] (30 days) is refused: surely a typo, not a plan.
 MAX_RUN_S = 30 * 86400.0
 
-Rows = tuple[FloatArray, FloatArray, IntArray]
+#: (energy, ledger, counts, dose-to-water sums (rows, 2, n_cells or 0): A, B of
+#: :mod:`tetdose.transport.run.water`).
+Rows = tuple[FloatArray, FloatArray, IntArray, FloatArray]
 
 
 class TransportJob(NamedTuple):
@@ -174,16 +175,20 @@ class Pace:
 
 def run_batches(job: TransportJob, xs: CrossSections, settings: TransportSettings,
                 b_start: int, b_stop: int, pace: Pace | None = None) -> Rows:
-    """Rows ``b_start … b_stop−1`` of (energy [MeV], ledger [MeV], counters), kernel cell order.
+    """Rows ``b_start … b_stop−1`` of (energy [MeV], ledger [MeV], counters, dose-to-water
+    sums [MeV]: n_cells 0 unless dose mode tallies them for ``dose_to`` water), kernel cell
+    order.
 
     ``pace``: run them in kernel calls of about ``pace.target_s`` each (so that a signal stops
     the run within about that time; bitwise the same rows); None: in one call."""
     n = b_stop - b_start
     energy = np.zeros((n, len(job.mass_g)))
+    tracked = job.particles is not None and settings.dose_to == "water"
+    water = np.zeros((n, 2, len(job.mass_g) if tracked else 0))
     if job.particles is not None:  # dose mode
         ledger = np.zeros((n, N_LEDGER_DOSE))
         counts = np.zeros((n, N_COUNTS_DOSE), dtype=np.int64)
-        call = dose_rows_call(job, xs, settings, b_start, b_stop, energy, ledger, counts)
+        call = dose_rows_call(job, xs, settings, b_start, b_stop, energy, ledger, counts, water)
     else:
         ledger = np.zeros((n, N_LEDGER))
         counts = np.zeros((n, N_COUNTS), dtype=np.int64)
@@ -198,7 +203,7 @@ def run_batches(job: TransportJob, xs: CrossSections, settings: TransportSetting
     most = -(-settings.n_histories // settings.n_batches)  # histories of the largest batch
     if pace is None:
         call(0, most)
-        return energy, ledger, counts
+        return energy, ledger, counts, water
     done = 0
     while done < most:
         m = min(pace.histories, most - done)
@@ -206,7 +211,7 @@ def run_batches(job: TransportJob, xs: CrossSections, settings: TransportSetting
         call(done, done + m)
         pace.update(m, time.perf_counter() - t0)
         done += m
-    return energy, ledger, counts
+    return energy, ledger, counts, water
 
 
 def preflight(job: TransportJob, xs: CrossSections, settings: TransportSettings,
@@ -224,7 +229,7 @@ def preflight(job: TransportJob, xs: CrossSections, settings: TransportSettings,
     t0 = time.perf_counter()
     run_batches(job, xs, tiny, 0, 2)  # the fixed cost of a call (tables, tally, thread launch)
     t1 = time.perf_counter()
-    _, _, counts = run_batches(job, xs, pilot, 0, 2)
+    counts = run_batches(job, xs, pilot, 0, 2)[2]
     t2 = time.perf_counter()
     # per-history cost without the call's fixed cost (a pilot of 1000 cheap kerma histories is
     # otherwise mostly that), so the estimate scales with what a history costs: electrons too
@@ -380,18 +385,6 @@ def physics_record(settings: TransportSettings) -> dict[str, object]:
     return rec
 
 
-def water_factors(names: list[str | Material], settings: TransportSettings
-                  ) -> tuple[FloatArray, dict[str, object]]:
-    """Per material: the factor from the tallied energy to the reported one (s_w,m for dose to
-    water, else 1), and the record of the conversion."""
-    if settings.dose_to != "water":
-        return np.ones(len(names)), {}
-    ratios = {resolve_material(m).name: water_to_medium_ratio(m) for m in names}
-    return np.array(list(ratios.values())), {"dose_to_water": {
-        "method": DOSE_TO_WATER_METHOD.format(quality=DEFAULT_QUALITY),
-        "s_w_m": ratios}}
-
-
 def assemble(job: TransportJob, on_grid: MeshOnGrid | None, plan: Plan,
              settings: TransportSettings, rows: list[Rows], wall_s: float,
              extra: dict[str, object] | None = None, *, per_batch: IntArray | None = None
@@ -399,11 +392,12 @@ def assemble(job: TransportJob, on_grid: MeshOnGrid | None, plan: Plan,
     """DoseResult from batch rows in batch order (tets moved back to mesh order); ``per_batch``:
     the histories of the rows when not all of the settings' batches ran."""
     energy = np.concatenate([r[0] for r in rows])
+    sums = np.concatenate([r[3] for r in rows]).sum(axis=0)  # batch order: any thread count
     if job.order is not None:
         energy[:, job.order] = energy[:, :job.n_tets].copy()
-    factor, conversion = water_factors(job.names, settings)
-    if job.material_of_cell is not None and conversion:
-        energy *= factor[job.material_of_cell][None, :]  # D_w = D_m · s_w,m, same mass
+        if sums.shape[1] > 0:
+            sums[:, job.order] = sums[:, :job.n_tets].copy()
+    ratio, conversion = convert(job.names, job.material_of_cell, settings, energy, sums)
     ledger = np.concatenate([r[1] for r in rows])
     counts = np.concatenate([r[2] for r in rows])
     if per_batch is None:
@@ -413,7 +407,7 @@ def assemble(job: TransportJob, on_grid: MeshOnGrid | None, plan: Plan,
                         job.grid, {**media_record(job.names), "n_cells": len(job.mass_g),
                                    **physics_record(settings), **_mix(plan), **conversion,
                                    **(extra or {})},
-                        n_tets=job.n_tets, on_grid=on_grid)
+                        n_tets=job.n_tets, on_grid=on_grid, water_ratio=ratio)
     if not np.any(energy):
         warnings.warn("the dose is zero everywhere: no photon interacted in the world (is it "
                       "vacuum, or do the beams only graze it?)", stacklevel=3)

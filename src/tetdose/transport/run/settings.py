@@ -93,7 +93,7 @@ class TransportSettings:
     range_rejection_mev: float = RANGE_REJECTION_MEV
     #: Dose mode's photon flights through the mesh: "woodcock" (delta tracking) or "walk".
     photon_tracking: str = "woodcock"
-    #: "medium" (D_m) or "water" (D_w = D_m · s_w,m, :mod:`tetdose.transport.physics.dose_to_water`).
+    #: "medium" (D_m) or "water" (D_w = D_m · s_w,m per cell, :mod:`tetdose.transport.run.water`).
     dose_to: str = "medium"
     #: Source particles from scrambled Sobol points (one independent scramble per batch).
     quasi_random: bool = False
@@ -154,7 +154,9 @@ class TransportSettings:
             object.__setattr__(self, name, int(getattr(self, name)))
 
     def check_tally_size(self, n_cells: int) -> None:
-        need = self.n_batches * n_cells * 8
+        water = self.dose_to == "water" and self.physics == "dose"  # + its two sums per cell
+        need = self.n_batches * n_cells * 8 * (3 if water else 1)
         if need > self.max_tally_bytes:
             raise PlanError(f"the tally needs {need / 2**20:.0f} MiB ({self.n_batches} batches × "
-                            f"{n_cells} cells); use fewer batches or raise max_tally_bytes")
+                            f"{n_cells} cells{' × 3 for dose to water' if water else ''}); use "
+                            "fewer batches or raise max_tally_bytes")
