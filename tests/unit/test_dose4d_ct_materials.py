@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from test_ct_materials import PLAN  # the same 12 mm 2 MeV beam along z
 
 from tetdose.cli import main
 from tetdose.core.calibration import HUCalibration
@@ -21,14 +22,6 @@ from tetdose.transport import Plan, TransportSettings
 from helpers import box_mesh
 
 CAL = HUCalibration.schneider2000()
-PLAN = """
-[[beam]]
-type = "parallel"
-energy_mev = 2.0
-position_mm = [0.0, 0.0, -10.0]
-direction = [0.0, 0.0, 1.0]
-field_mm = [12.0, 12.0]
-"""
 #: Slabs along z (2 mm slices): soft tissue, lung, bone, soft tissue; the mesh sits in the last.
 SLABS = ((8, 40.0), (16, -700.0), (22, 1000.0), (30, 40.0))
 
