@@ -34,9 +34,13 @@ def test_report_numbers_are_sane(demo):
     assert all(abs(p["mass_change_rel"]) < 1e-9 for p in s["motion"])  # over the whole cycle
     assert s["dose"]["ledger_closure_rel"] < 1e-9 and s["dose"]["lost_photons"] == 0
     matched = s["gamma"]["static phase, matched resolution: voxel vs mesh 3%/3mm global"]
-    # --quick: 2·10⁴ histories with electrons leave a few % of noise per voxel (σ in the tumour
-    # ≈ 5 %); the full demo's figure is in the README.
-    assert matched["pass_rate_percent"] > 50.0
+    plain = s["gamma"]["static phase: voxel vs mesh 3%/3mm global"]
+    # --quick: 2·10⁴ histories with electrons leave ~20 % of noise per voxel, so γ is mostly
+    # noise (issue 28: two unbiased runs would pass only `expected_pass_rate_percent` at the
+    # CT's resolution, ~48 % here). Seeing both doses at the mesh's resolution must help, and
+    # reach about what noise alone allows; the full demo's figures are in the README.
+    assert matched["pass_rate_percent"] > plain["pass_rate_percent"]
+    assert matched["pass_rate_percent"] > plain["expected_pass_rate_percent"] - 5.0
     tumour = s["dvh"]["tumour"]
     assert tumour["mesh"]["Dmean"] > 0 and tumour["voxel EMT"]["Dmean"] > 0
     # The three accumulations agree on the tumour's mean dose within a few per cent.
