@@ -15,7 +15,7 @@ SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 #: first compiles the dose-mode transport kernels (~5 min); meanwhile the other worker meshes, then
 #: compiles kernels that one does not (Woodcock's, kerma mode's), so the two rarely compile the same
 #: kernel at once; the demo, the longest file, comes once the dose kernels are in the cache. Ending
-#: on short files keeps both workers busy to the end (measured: they finish within ~30 s).
+#: on short files keeps both workers busy to the end (two cold runs: they finished 3 and 8 s apart).
 FIRST = ("unit/test_cli_errors.py", "unit/test_meshing_conforming.py", "unit/test_overlap_polyhedron.py",
          "unit/test_phantoms_organ.py", "unit/test_meshing_batches.py", "unit/test_mesh_signals.py",
          "unit/test_meshing.py", "verification/test_woodcock.py", "unit/test_register.py",
