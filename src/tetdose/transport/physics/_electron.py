@@ -319,9 +319,12 @@ def _screening_table() -> np.ndarray:
     m1 = 1.0 / (1.0 + np.exp(-t))
     a = 0.5 * m1 / (np.log(1.0 / m1) + 2.0)
     for _ in range(200):
-        g = 2.0 * a * ((1.0 + a) * np.log1p(1.0 / a) - 1.0)
-        dg = 2.0 * (1.0 + 2.0 * a) * np.log1p(1.0 / a) - 4.0
-        a = a * np.exp((np.log(m1) - np.log(g)) * g / (a * dg))
+        el = np.log1p(1.0 / a)
+        g = 2.0 * a * ((1.0 + a) * el - 1.0)
+        step = (np.log(m1) - np.log(g)) * g / (a * (2.0 * (1.0 + 2.0 * a) * el - 4.0))
+        a = a * np.exp(step)
+        if np.abs(step).max() < 1e-12:
+            break
     return np.log(a)
 
 
