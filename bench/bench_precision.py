@@ -158,7 +158,8 @@ def main() -> None:
     ap.add_argument("--setting", action="append", default=[], metavar="KEY=VALUE",
                     help="a TransportSettings field for tetdose's runs (repeatable)")
     ap.add_argument("--compare", action="append", default=[], metavar="KEY=VALUE",
-                    help="run the voxels again with these settings added; print the gain")
+                    help="run the voxels again with these settings added (KEY=VALUE;KEY=VALUE); "
+                         "print the gain")
     args = ap.parse_args()
     numba.set_num_threads(args.threads)
     extra = parse_settings(args.setting)
@@ -178,7 +179,7 @@ def main() -> None:
     f_vox = figures("tetdose voxels", rel_sigma(vox.dose_gy, vox.dose_std_gy, mask), cpu, n,
                     fixed)
     for pair in args.compare:
-        alt = {**extra, **parse_settings([pair])}
+        alt = {**extra, **parse_settings(pair.split(";"))}
         res, cpu2 = timed(simulate, rho, pl, settings(n, alt), progress=False)
         f = figures(f"tetdose voxels {pair}", rel_sigma(res.dose_gy, res.dose_std_gy, mask),
                     cpu2, n, fixed)
