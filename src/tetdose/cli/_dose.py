@@ -131,8 +131,9 @@ def add_run_args(parser: argparse.ArgumentParser, per: str = "") -> None:
                         help="dose mode, with --photon-splitting N > 1: roulette = Russian "
                         "roulette for the split photons' electrons (EGSnrc, default); follow = "
                         "follow them all with weight 1/N, roulette for the secondary photons "
-                        "(XVMC); repeat = that, with one electron track replayed for the N "
-                        "copies (XVMC's history repetition)")
+                        "(XVMC); repeat = XVMC's splitting along the ray: every photon of "
+                        "weight 1 split into N copies at stratified depths, one shared "
+                        "interaction and one electron track replayed from each copy's site")
     parser.add_argument("--range-rejection-mev", type=float_in(0.0, 20.0),
                         default=RANGE_REJECTION_MEV, metavar="MEV",
                         help="dose mode: an electron up to this energy that cannot leave its "

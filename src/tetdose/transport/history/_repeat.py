@@ -2,23 +2,23 @@
 for the electrons of every copy of a split photon (``splitting_scheme="repeat"``).
 
 **Method** (XVMC: Kawrakow, Fippel & Friedrich, Med. Phys. 23:445, 1996; Kawrakow & Fippel,
-PMB 45:2163, 2000; VMC++). The n copies of a source photon (weight 1/n, XVMC's splitting of
-:mod:`tetdose.transport.history._coupled`) each fly to their own first interaction, but that
-interaction's type and kinematics come from one random stream shared by the copies: the copies
-of a primary all move along one direction with one energy, so each sets in motion an electron
-of the same energy T and direction at its own site (where the material picks the same type).
-That electron's track is sampled once, in the medium m₀ of the first site, by
-:func:`record_track` (the physics of :func:`~tetdose.transport.history._electron.electron_track`,
-with the same random hinge and fictitious hard events, but no geometry): per step the mass
-thicknesses before and after the hinge s₁, s₂ [mm·g/cm³], the hinge deflection (cos θ, φ)
-and the energy at its end; per hard event the δ-ray or bremsstrahlung photon (energy, cos, φ
-relative to the electron) and the primary's new energy and deflection. Every copy then
-replays it (:func:`replay_track`) from its own site, with its weight 1/n: each step walks the
-real geometry (voxels, linear-density tets, hybrid; :func:`~._segment.segment` moves a given
-mass thickness) and deposits the step's energy loss along it; δ-rays are pushed with weight
-1/n and transported, photons play Russian roulette (survival 1/n). The track is a fresh sample
-for every source photon, so each copy's electron is, on its own, an analog track: the dose is
-unbiased (the copies are correlated, which is what the saved electron transport costs).
+PMB 45:2163, 2000; VMC++). The n copies of a split photon (weight 1/n,
+:mod:`tetdose.transport.history._split`) interact at their own sites along its ray, but with one
+random stream shared by the copies: they all move along one direction with one energy, so each
+sets in motion an electron of the same energy T and direction at its own site (where the
+material picks the same type). That electron's track is sampled once, in the medium m₀ of the
+first site it is needed at, by :func:`record_track` (the physics of
+:func:`~tetdose.transport.history._electron.electron_track`, with the same random hinge and
+fictitious hard events, but no geometry): per step the mass thicknesses before and after the
+hinge s₁, s₂ [mm·g/cm³], the hinge deflection (cos θ, φ) and the energy at its end; per hard
+event the δ-ray or bremsstrahlung photon (energy, cos, φ relative to the electron) and the
+primary's new energy and deflection. Every copy then replays it (:func:`replay_track`) from its
+own site, with its weight 1/n: each step walks the real geometry (voxels, linear-density tets,
+hybrid; :func:`~._segment.segment` moves a given mass thickness) and deposits the step's energy
+loss along it; δ-rays are pushed with weight 1/n and transported, photons play Russian roulette
+(survival 1/n). The track is a fresh sample for every split photon, so each copy's electron is,
+on its own, an analog track: the dose is unbiased (the copies are correlated, which is what the
+saved electron transport costs).
 
 **Scaling to the local medium** (XVMC's eqs. for step length and deflection): in a medium m ≠
 m₀ a step of mass thickness s₀ becomes s = s₀ / f_c with f_c = S_m(Ē)/S_m₀(Ē) the restricted
@@ -34,6 +34,8 @@ medium at the step's mean energy, and the replayed track's end.
 """
 
 import math
+
+from numba import njit
 
 from tetdose._constants import MM_PER_CM
 from tetdose._jit import kernel
@@ -145,17 +147,21 @@ def scaled_cos(et, m0, m, e, mu):
     return -1.0 if theta >= math.pi else math.cos(theta)
 
 
-@kernel
+@njit(cache=True, inline="always")
 def replay_move(wg, et, m0, e_mid, col0, de, wt, cell, entry, x, y, z, u, v, w, tally, ledger,
                 counts, bcell, bcol, dw):
     """Move the reference column ``col0`` [mm·g/cm³ of m₀] straight through the world, each
     piece in medium m scaled by 1/f_c, and deposit wt × ``de`` along it in proportion to the
     reference column: (outcome, cell, entry, x, y, z, energy deposited [MeV, unweighted])."""
-    s0 = stopping_power(et, m0, ELECTRON, e_mid)
+    s0 = -1.0
     left, dep, idle = col0, 0.0, 0
     while True:
         m = cell_material(wg, cell)
-        f_c = stopping_power(et, m, ELECTRON, e_mid) / s0 if m != m0 else 1.0
+        f_c = 1.0
+        if m != m0:
+            if s0 < 0.0:
+                s0 = stopping_power(et, m0, ELECTRON, e_mid)
+            f_c = stopping_power(et, m, ELECTRON, e_mid) / s0
         out, cell2, entry2, x, y, z, rest, nb = segment(wg, cell, entry, x, y, z, u, v, w,
                                                         left / f_c, m, bcell, bcol, 0, counts)
         done = left / f_c - rest
@@ -192,7 +198,8 @@ def replay_track(wg, et, trk, n_rows, m0, e, cell, x, y, z, u, v, w, wt, state, 
                                                          entry, x, y, z, u, v, w, tally, ledger,
                                                          counts, bcell, bcol, dw)
             if out == SEG_DONE:
-                mu = scaled_cos(et, m0, cell_material(wg, cell), e_mid, r[2])
+                m = cell_material(wg, cell)
+                mu = r[2] if m == m0 else scaled_cos(et, m0, m, e_mid, r[2])
                 u, v, w = rotate_direction(u, v, w, mu, r[3])
                 out, cell, entry, x, y, z, dep2 = replay_move(
                     wg, et, m0, e_mid, r[4], de - de1, wt, cell, -1, x, y, z, u, v, w, tally,

@@ -19,6 +19,8 @@ Every cell crossed with a positive column is appended to ``(bcell, bcol)`` with 
 proportion to the mass thickness in each cell. The buffer always keeps two free entries.
 """
 
+from numba import njit
+
 from tetdose._jit import kernel
 from tetdose.transport.geometry._tet import MAX_ZERO_STEPS, exit_face, next_tet
 from tetdose.transport.geometry._voxel import dda_init, dda_step
@@ -160,15 +162,41 @@ def segment_voxel(wg, vid, x, y, z, u, v, w, need, mat, t_min, bcell, bcol, nb, 
             return _LEFT, -1, x + t_cur * u, y + t_cur * v, z + t_cur * w, need, nb
 
 
-@kernel
+@njit(cache=True, inline="always")
+def within_voxel(wg, cell, x, y, z, u, v, w, col):
+    """Length [mm] of a straight move of column ``col`` [mm·g/cm³] from (x, y, z) in global
+    ``cell`` if the cell is a voxel (listing no mesh triangle) that holds its end — a box holds
+    the whole move then — else −1."""
+    m_tets = wg.tet.planes.shape[0]
+    if cell < m_tets:
+        return -1.0
+    g = wg.vox
+    vid = cell - m_tets
+    if g.material[vid] < 0 or g.density[vid] <= 0.0:
+        return -1.0
+    s = col / g.density[vid]
+    i, j, k = voxel_ijk(g, vid)
+    bx, by, bz = g.lo[0] + i * g.cell[0], g.lo[1] + j * g.cell[1], g.lo[2] + k * g.cell[2]
+    ex, ey, ez = x + s * u, y + s * v, z + s * w
+    if (bx < ex < bx + g.cell[0] and by < ey < by + g.cell[1] and bz < ez < bz + g.cell[2]):
+        return s
+    return -1.0
+
+
+@njit(cache=True, inline="always")
 def segment(wg, cell, entry, x, y, z, u, v, w, need, mat, bcell, bcol, nb, counts):
     """Move a straight segment of column ``need`` [mm·g/cm³] from global ``cell`` through the
     world (module docstring): (outcome, cell, entry, x, y, z, need left, nb).
 
     The mesh ↔ voxel switches and vacuum gaps follow the photon flight
     (:func:`tetdose.transport.history._photon.flight`); a cell reached across a switch or a gap
-    that holds another material ends the segment there (SEG_MATERIAL).
+    that holds another material ends the segment there (SEG_MATERIAL). A move that ends in
+    the voxel it starts in (:func:`within_voxel`) skips the walk.
     """
+    s = within_voxel(wg, cell, x, y, z, u, v, w, need)
+    if s >= 0.0:  # the common short move inside one voxel
+        nb = _append(bcell, bcol, nb, cell, need)
+        return SEG_DONE, cell, -1, x + s * u, y + s * v, z + s * w, 0.0, nb
     m_tets = wg.tet.planes.shape[0]
     t_min = -HIT_TOL_MM
     for _ in range(MAX_SWITCHES):

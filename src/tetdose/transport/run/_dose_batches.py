@@ -9,7 +9,8 @@ cumulative probabilities ``group_cdf``: photon beams, electron beams, positron b
 (:class:`~tetdose.transport.sources._volume.VolumeArrays`, born inside the world's cells).
 A source photon is followed as ``n_split`` copies of weight 1/n_split, one after the other on the
 history's stream (photon splitting, :mod:`tetdose.transport.history._coupled`; ``follow``: their
-electrons are followed with that weight, else rouletted).
+electrons are followed with that weight, else rouletted); with ``repeat`` the history splits
+every photon of weight 1 itself, along its ray (:mod:`tetdose.transport.history._split`).
 """
 
 import numpy as np
@@ -28,11 +29,14 @@ from tetdose.transport.history._electron import (
 )
 from tetdose.transport.history._photon import C_MISSED, C_RELOCATIONS, L_ESCAPED, L_SOURCE
 from tetdose.transport.history._repeat import KEY_SIZE, TRACK_COLUMNS, TRACK_ROWS
+from tetdose.transport.history._split import SITE_COLUMNS
 from tetdose.transport.sources._sample import sample_source
 from tetdose.transport.sources._volume import sample_volume
 
 #: Stack depth for mixed particles (a shower waits depth-first: photons, δ-rays, brems,
-#: annihilation photons), and the buffer of cells one electron step may cross.
+#: annihilation photons; a photon split along its ray adds up to 2 per copy and its survivor,
+#: and a photon split while another waits: 4 per copy),
+#: and the buffer of cells one electron step may cross.
 STACK_DEPTH = 64
 STEP_CELLS = 256
 
@@ -83,7 +87,8 @@ def run_world_dose(tet, vox, tri_lo, tri_n, tri_start, tri_items, xs, ln_mu_hat,
     """
     for b in prange(b_start, b_stop):
         wg = WorldGeometry(tet, vox, tri_lo, tri_n, tri_start, tri_items)
-        stack = np.empty((STACK_DEPTH, STACK_COLUMNS))
+        stack = np.empty((STACK_DEPTH + 4 * n_split, STACK_COLUMNS))
+        sites = np.empty((n_split, SITE_COLUMNS))
         bcell = np.empty(STEP_CELLS, dtype=np.intp)
         bcol = np.empty(STEP_CELLS)
         trk = np.empty((TRACK_ROWS, TRACK_COLUMNS))
@@ -105,18 +110,14 @@ def run_world_dose(tet, vox, tri_lo, tri_n, tri_start, tri_items, xs, ln_mu_hat,
                 led[L_ESCAPED] += e_ledger
                 cnt[C_MISSED] += 1
                 continue
-            copies = n_split if sp == PHOTON else 1
+            sch = scheme if n_split > 1 else min(scheme, 1)
+            copies = n_split if sp == PHOTON and sch < 2 else 1  # "repeat" splits in the history
             wt = 1.0 / copies
-            kin = state
-            sch = scheme if copies > 1 else min(scheme, 1)
-            if sch == 2:  # the copies' shared stream for their first interaction
-                state, xk = next_uniform(state)
-                kin = seed_for(int(xk * 9007199254740992.0), stream, h)
-                key[0] = -1.0
+            key[0] = -1.0  # no track of another history is replayed
             for _ in range(copies):
                 state = coupled_history(wg, xs, ln_mu_hat, et, sig_hat, sp, e, cell, x, y, z,
-                                        u, v, w, state, kin, photon_cutoff, f_loss, wt, sch,
-                                        rr_mev, tally, led, cnt, stack, bcell, bcol, trk, key,
-                                        dw)
+                                        u, v, w, state, photon_cutoff, f_loss, wt, sch, n_split,
+                                        rr_mev, tally, led, cnt, stack, bcell, bcol, sites, trk,
+                                        key, dw)
         ledger[b - b_start, :] = led
         counts[b - b_start, :] = cnt

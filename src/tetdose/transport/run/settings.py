@@ -11,10 +11,11 @@ electron may lose in one step (EGSnrc's ESTEPE). ``photon_splitting`` n follows 
 photon as n copies of weight 1/n and plays Russian roulette with the electrons they set in motion
 (unbiased; :mod:`tetdose.transport.history._coupled`; dose mode only);
 ``splitting_scheme="follow"`` follows those electrons with weight 1/n instead and plays the
-roulette with the secondary photons (XVMC's scheme); ``"repeat"`` does so too, but the copies
-share their first interaction and one electron track, sampled once and replayed from each
-copy's site, scaled to the local medium (XVMC's electron history repetition;
-:mod:`tetdose.transport.history._repeat`). ``range_rejection_mev``
+roulette with the secondary photons (XVMC's scheme); ``"repeat"`` splits every photon of weight
+1 (not only the source photons) into n copies whose interaction sites are stratified along its
+ray, share one interaction and one electron track, sampled once and replayed from each copy's
+site, scaled to the local medium (XVMC's splitting with electron history repetition;
+:mod:`tetdose.transport.history._split`, :mod:`tetdose.transport.history._repeat`). ``range_rejection_mev``
 E: an electron of at most E starting in a voxel or tet it cannot leave deposits its energy there
 at once (EGSnrc's ESAVE; only the hard bremsstrahlung it would have radiated stays too; 0: off).
 The estimator is ``"track_length"`` (kerma default) or ``"analog"``; dose mode scores the analog
