@@ -3,8 +3,9 @@ through ``tetdose dose4d``; the median per-tet σ in the lung tets above 50 % of
 the time it took.
 
 Run: ``NUMBA_CACHE_DIR=.numba-cache .venv/bin/python bench/precision_real_ct.py OUT
-[HISTORIES ...]`` (default 1e5 per phase; each value is one dose4d run, timed apart; needs
-``../shared``). Pipeline (the CLI, as a user runs it): the lung mask of
+[HISTORIES ...] [--dose4d-args "--photon-splitting 32 --splitting-scheme repeat"]`` (default
+1e5 per phase; each value is one dose4d run, timed apart; the extra arguments go to every
+dose4d run; needs ``../shared``). Pipeline (the CLI, as a user runs it): the lung mask of
 ``../shared/data/lung-elastix`` → ``tetdose mesh`` (15 mm edges) → ``map`` on the CT →
 ``deform --breathing`` (10 phases, 10 mm, 4 s) → ``dose4d --like CT`` (the mesh inside the CT,
 absorbed dose with electrons, the defaults, both threads) with the VMAT plan of
@@ -17,6 +18,8 @@ accumulated dose over the lung tets whose dose exceeds 50 % of the tissue's near
 
 from __future__ import annotations
 
+import argparse
+import shlex
 import subprocess
 import sys
 import time
@@ -68,23 +71,31 @@ def median_sigma(vtu: Path, threshold_gy: float | None = None) -> tuple[float, i
 
 
 def main() -> None:
-    out = Path(sys.argv[1])
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("out", type=Path)
+    ap.add_argument("histories", nargs="*", default=["1e5"], help="photons per phase, one run each")
+    ap.add_argument("--dose4d-args", default="", help="more dose4d arguments, one string")
+    args = ap.parse_args()
+    out = args.out
     out.mkdir(parents=True, exist_ok=True)
     prepare(out)
     ct = str(DATA / "3DCT_lung_baseline_small.mha")
-    for text in sys.argv[2:] or ["1e5"]:
+    extra = shlex.split(args.dose4d_args)
+    tag = "_".join(a.lstrip("-") for a in extra)
+    for text in args.histories:
         n = float(text)
-        run = out / f"dose4d_{text}"
+        run = out / f"dose4d_{text}{'_' + tag if tag else ''}"
         t0 = time.perf_counter()
         subprocess.run([sys.executable, "-m", "tetdose", "dose4d", "--phases", "phases",
                         "--plan", "vmat.toml", "--like", ct, "--histories", text, "--seed", "1",
-                        "-o", run.name, "-q"], cwd=out, check=True)
+                        *extra, "-o", run.name, "-q"], cwd=out, check=True)
         wall = time.perf_counter() - t0
         sig, n_tets, threshold = median_sigma(run / "accumulated.vtu")
         sig0, _, _ = median_sigma(sorted(run.glob("phase_0*.vtu"))[0], threshold)
         need = n * (sig / TARGET_SIGMA) ** 2
-        print(f"{n:9.3g} photons/phase: dose4d {wall:6.0f} s wall; {n_tets} lung tets > 50 % of "
-              f"D0.1cm³; median σ accumulated {100 * sig:5.2f} %, phase 0 {100 * sig0:5.2f} %; "
+        print(f"{n:9.3g} photons/phase {' '.join(extra)}: dose4d {wall:6.0f} s wall; {n_tets} "
+              f"lung tets > 50 % of D0.1cm³; median σ accumulated {100 * sig:5.2f} %, "
+              f"phase 0 {100 * sig0:5.2f} %; "
               f"2 % needs {need:8.3g} per phase ≈ {wall * need / n / 60:5.1f} min "
               f"(target ≤ {TARGET_S / 60:.0f} min)", flush=True)
 

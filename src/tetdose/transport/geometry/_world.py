@@ -58,7 +58,7 @@ def voxel_id(g, i, j, k):
     return (k * g.n[1] + j) * g.n[0] + i
 
 
-@kernel
+@njit(cache=True, inline="always")
 def voxel_ijk(g, vid):
     """(i, j, k) of a flat voxel id."""
     nx, ny = g.n[0], g.n[1]

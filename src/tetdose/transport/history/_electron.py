@@ -66,6 +66,7 @@ import math
 from typing import NamedTuple
 
 import numpy as np
+from numba import njit
 
 from tetdose._constants import MM_PER_CM
 from tetdose._jit import kernel
@@ -224,7 +225,7 @@ def stop_charged(state, sp, e, x, y, z, cell, wt, tally, ledger, counts, stack, 
     return state, n_stack
 
 
-@kernel
+@njit(cache=True, inline="always")
 def deposit_step(de, bcell, bcol, nb, col_done, tally, cell):
     """Share ``de`` [MeV] among the buffered cells in proportion to their column (the last one
     takes the remainder, so Σ = de exactly); all in ``cell`` if nothing was crossed."""

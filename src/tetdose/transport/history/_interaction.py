@@ -22,6 +22,8 @@ particle, − (1 − w)·E for a survivor (E = T, + 2mc² for a positron).
 
 import math
 
+from numba import njit
+
 from tetdose._jit import kernel
 from tetdose._random import next_uniform
 from tetdose.transport.history._electron import (
@@ -55,7 +57,7 @@ ROULETTE, FOLLOW, REPEAT = 0, 1, 2
 INCOHERENT, PAIR, PHOTOELECTRIC = 0, 1, 2
 
 
-@kernel
+@njit(cache=True, inline="always")
 def release(state, sp, t, x, y, z, u, v, w, cell, e_cut, wt, scheme, tally, ledger, counts,
             stack, n_stack):
     """An e± of kinetic energy ``t`` set in motion at (x, y, z) by a photon of weight ``wt``:
@@ -122,7 +124,7 @@ def interaction_products(xs, m, e, u, v, w, state):
     return state, PHOTOELECTRIC, 0.0, u, v, w, e, eu, ev, ew, 0.0, 0.0, 0.0, 0.0
 
 
-@kernel
+@njit(cache=True, inline="always")
 def release_products(state, kind, t1, eu, ev, ew, t2, pu, pv, pw, x, y, z, cell, e_cut, wt,
                      scheme, tally, ledger, counts, stack, n_stack):
     """:func:`release` the charged particles of an interaction sampled by

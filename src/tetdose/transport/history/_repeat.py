@@ -181,7 +181,7 @@ def replay_move(wg, et, m0, e_mid, col0, de, wt, cell, entry, x, y, z, u, v, w, 
         cell, entry = cell2, entry2
 
 
-@kernel
+@njit(cache=True, inline="always")
 def replay_track(wg, et, trk, n_rows, m0, e, cell, x, y, z, u, v, w, wt, state, tally, ledger,
                  counts, stack, n_stack, bcell, bcol, dw):
     """Replay the recorded electron track ``trk`` (sampled in m₀) from global ``cell`` along
