@@ -221,6 +221,14 @@ class _Run:
         self.summary["physics"] = physics_record(settings)
         self.summary["dose"] = {**self.d4.summary(), "ledger_closure_rel": closure,
                                 "lost_photons": lost}
+        rho_ct = HUCalibration.schneider2000().density(np.asarray(self.ph.ct.array))
+        self.summary["precision"] = {
+            name: tet_precision(self.d4, self.series.reference.region == label,
+                                0.5 * plan.prescription.dose_gy,
+                                voxel_mass_mg(rho_ct, self.ph.labels.array == label,
+                                              self.ph.ct.grid.voxel_volume_mm3))
+            for name, label in self.label_of.items()
+            if name in MOVING and (self.series.reference.region == label).any()}
         return f"{self.c.physics}: {self.c.histories} histories × {self.c.n_phases} phases × 2 " \
                f"worlds (organ mesh in the CT, CT alone); ledger closes to {closure:.1e}, " \
                f"{lost} lost photons"
@@ -415,6 +423,36 @@ def _phases_figure(images: list[Image], percent: np.ndarray) -> Figure:
         ax.set_title(f"phase {percent[p]:.0f} %")
         ax.set_axis_off()
     return Figure("ct4d_phases", "Virtual 4D-CT, coronal slices (HU −1000…400)", render_png(fig))
+
+
+def voxel_mass_mg(density_g_cm3: np.ndarray, mask: np.ndarray, voxel_mm3: float) -> float:
+    """Median mass [mg] of the CT voxels in ``mask``: ρ [g/cm³] = [mg/mm³] × voxel volume."""
+    return float(np.median(np.asarray(density_g_cm3)[mask])) * voxel_mm3
+
+
+def tet_precision(d4: Any, tets: np.ndarray, floor_gy: float, voxel_mg: float) -> dict[str, Any]:
+    """Per-tet precision of a structure's tets (boolean ``tets`` on the reference mesh): their
+    count and median time-weighted mass [mg] beside its CT voxels' median mass ``voxel_mg``; the
+    median relative σ [%] of the accumulated dose and of each phase's dose over those of its tets
+    whose accumulated dose reaches ``floor_gy`` (a tet without dose counts as σ = ∞)."""
+    acc = d4.accumulated
+    sel = tets & (acc.dose_gy >= floor_gy)
+
+    def median_pct(dose: FloatArray, std: FloatArray | None) -> float | None:
+        if std is None or not sel.any():
+            return None
+        d, s = dose[sel], std[sel]
+        rel = np.divide(s, d, out=np.full(len(d), np.inf), where=d > 0)
+        return float(100.0 * np.median(rel))
+
+    phases = [median_pct(r.mesh_part().dose_gy, r.mesh_part().dose_std_gy) for r in d4.results]
+    return {"tets": int(tets.sum()), "median_tet_mass_mg": 1e3 * float(np.median(
+                acc.mass_g[tets])), "ct_voxel_mass_mg": voxel_mg,
+            "tets_scored": int(sel.sum()), "scored": f"accumulated dose ≥ {floor_gy:g} Gy",
+            "median_sigma_pct": {
+                "accumulated": median_pct(acc.dose_gy, acc.dose_std_gy),
+                "phase_median": None if None in phases else float(np.median(phases)),
+                "phases": phases}}
 
 
 def organ_mesh(ph: Phantom, names: tuple[str, ...]) -> TetMesh:

@@ -131,3 +131,40 @@ def test_demo_tells_physics_from_noise(demo):
     names = set(json.loads((out / "report" / "figures.json").read_text()))
     assert any(n.startswith("significance_k") for n in names)
     assert any(n.startswith("sigma_k") for n in names)
+
+
+def _median_rel_sigma_pct(vtu, region, floor_gy, sel=None):  # noqa: ANN001, ANN202
+    """Median σ/D [%] over a dose VTU's tets of ``region`` whose dose (or ``sel``) reaches the
+    floor; a tet without dose counts as σ = ∞."""
+    import meshio
+    import numpy as np
+
+    cells = {k: v[0] for k, v in meshio.read(vtu).cell_data.items()}
+    if sel is None:
+        sel = (cells["region"] == region) & (cells["dose"] >= floor_gy)
+    d, s = cells["dose"][sel], cells["dose_std"][sel]
+    return 100 * np.median(np.divide(s, d, out=np.full(len(d), np.inf), where=d > 0)), sel, cells
+
+
+def test_summary_reports_the_tumour_per_tet_sigma(demo):
+    """Issue 30: the summary reports the tumour's tets (count, median mass beside its CT voxels')
+    and their median per-tet σ, accumulated and per phase, as read back from the written dose
+    VTUs; K phases of equal weight give an accumulated σ about the phases' over √K."""
+    import numpy as np
+
+    out, s = demo
+    p = s["precision"]["tumour"]
+    tumour = s["phantom"]["labels"]["tumour"]
+    voxel_mm3 = float(np.prod(s["phantom"]["spacing_mm"]))
+    assert 0.8 < p["ct_voxel_mass_mg"] / voxel_mm3 < 1.1  # soft tissue [mg/mm³ = g/cm³]
+    floor = 0.5 * 2.0  # half the 2 Gy prescription
+    acc, sel, cells = _median_rel_sigma_pct(out / "dose4d" / "accumulated.vtu", tumour, floor)
+    assert p["tets"] == int((cells["region"] == tumour).sum()) and p["tets_scored"] == sel.sum()
+    assert 1e3 * np.median(cells["mass_g"][cells["region"] == tumour]) == pytest.approx(
+        p["median_tet_mass_mg"], rel=1e-6)
+    assert p["median_sigma_pct"]["accumulated"] == pytest.approx(acc, rel=1e-6)
+    phases = sorted((out / "dose4d").glob("phase_*.vtu"))
+    per = [_median_rel_sigma_pct(v, tumour, floor, sel)[0] for v in phases]
+    assert p["median_sigma_pct"]["phases"] == pytest.approx(per, rel=1e-6)
+    assert p["median_sigma_pct"]["phase_median"] == pytest.approx(np.median(per), rel=1e-6)
+    assert acc == pytest.approx(np.median(per) / np.sqrt(len(per)), rel=0.3)

@@ -245,7 +245,8 @@ def test_preflight_times_coupled_histories_so_the_estimate_counts_the_electrons(
 def test_variance_reduction_is_unbiased_on_the_demo_phase_0():
     """The demo's phantom at phase 0 (its CT through the Schneider calibration, its labels and
     materials) under the demo's 6 MV fields: the mean dose in the tumour, lung, bone, heart and body
-    with range rejection, and with photon splitting, agree with the analog run within 3σ."""
+    with range rejection, with photon splitting, and with XVMC's splitting along the ray (its
+    replayed tracks scaled across the thorax's media), agree with the analog run within 3σ."""
     from tetdose.core.calibration import HUCalibration
     from tetdose.phantoms import make_phantom
     from tetdose.study import StudyConfig, _plan
@@ -263,7 +264,9 @@ def test_variance_reduction_is_unbiased_on_the_demo_phase_0():
     means = {}
     for name, kw in (("analog", {"range_rejection_mev": 0.0}),
                      ("range rejection", {"range_rejection_mev": 2.0}),
-                     ("splitting 4", {"range_rejection_mev": 0.0, "photon_splitting": 4})):
+                     ("splitting 4", {"range_rejection_mev": 0.0, "photon_splitting": 4}),
+                     ("along the ray 16", {"photon_splitting": 16,
+                                           "splitting_scheme": "repeat"})):
         r = simulate(rho, plan, TransportSettings(200_000, 20, 11, **kw), labels=ph.labels,
                      progress=False)
         _closes(r)
@@ -271,7 +274,7 @@ def test_variance_reduction_is_unbiased_on_the_demo_phase_0():
                         for m in masks.values()], axis=1) / r.histories_per_batch[:, None]
         means[name] = (per.mean(axis=0), per.std(axis=0, ddof=1) / np.sqrt(len(per)))
     m0, s0 = means["analog"]
-    for name in ("range rejection", "splitting 4"):
+    for name in ("range rejection", "splitting 4", "along the ray 16"):
         m, s = means[name]
         z = (m - m0) / np.hypot(s, s0)
         assert np.all(np.abs(z) < 3.0), (name, dict(zip(masks, z, strict=True)))
