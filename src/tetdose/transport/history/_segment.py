@@ -22,7 +22,7 @@ proportion to the mass thickness in each cell. The buffer always keeps two free 
 from numba import njit
 
 from tetdose._jit import kernel
-from tetdose.transport.geometry._tet import MAX_ZERO_STEPS, exit_face, next_tet
+from tetdose.transport.geometry._tet import MAX_ZERO_STEPS, density_at, exit_face, next_tet
 from tetdose.transport.geometry._voxel import dda_init, dda_step
 from tetdose.transport.geometry._walk import (
     MAX_SWITCHES,
@@ -163,13 +163,26 @@ def segment_voxel(wg, vid, x, y, z, u, v, w, need, mat, t_min, bcell, bcol, nb, 
 
 
 @njit(cache=True, inline="always")
-def within_voxel(wg, cell, x, y, z, u, v, w, col):
+def within_cell(wg, cell, x, y, z, u, v, w, col):
     """Length [mm] of a straight move of column ``col`` [mm·g/cm³] from (x, y, z) in global
-    ``cell`` if the cell is a voxel (listing no mesh triangle) that holds its end — a box holds
-    the whole move then — else −1."""
+    ``cell`` if the cell holds its end strictly inside — a tet or a box is convex, so it holds
+    the whole move then — else −1. In a tet the length is the exact root of the linear density
+    (:func:`~tetdose.transport.geometry._walk.column_distance`); voxels that list mesh
+    triangles are left to the walk."""
     m_tets = wg.tet.planes.shape[0]
     if cell < m_tets:
-        return -1.0
+        g = wg.tet
+        rho0 = density_at(g, cell, x, y, z)
+        if not rho0 > 0.0:
+            return -1.0
+        a = g.density[cell, 0] * u + g.density[cell, 1] * v + g.density[cell, 2] * w
+        s = column_distance(rho0, a, col, -1.0)
+        ex, ey, ez = x + s * u, y + s * v, z + s * w
+        for f in range(4):
+            if (g.planes[cell, f, 0] * ex + g.planes[cell, f, 1] * ey + g.planes[cell, f, 2] * ez
+                    >= g.planes[cell, f, 3]):
+                return -1.0
+        return s
     g = wg.vox
     vid = cell - m_tets
     if g.material[vid] < 0 or g.density[vid] <= 0.0:
@@ -191,12 +204,13 @@ def segment(wg, cell, entry, x, y, z, u, v, w, need, mat, bcell, bcol, nb, count
     The mesh ↔ voxel switches and vacuum gaps follow the photon flight
     (:func:`tetdose.transport.history._photon.flight`); a cell reached across a switch or a gap
     that holds another material ends the segment there (SEG_MATERIAL). A move that ends in
-    the voxel it starts in (:func:`within_voxel`) skips the walk.
+    the tet or voxel it starts in (:func:`within_cell`) skips the walk.
     """
-    s = within_voxel(wg, cell, x, y, z, u, v, w, need)
-    if s >= 0.0:  # the common short move inside one voxel
+    s = within_cell(wg, cell, x, y, z, u, v, w, need)
+    if s >= 0.0:  # the common short move inside one cell
         nb = _append(bcell, bcol, nb, cell, need)
-        return SEG_DONE, cell, -1, x + s * u, y + s * v, z + s * w, 0.0, nb
+        return (SEG_DONE, cell, entry if cell < wg.tet.planes.shape[0] else -1, x + s * u,
+                y + s * v, z + s * w, 0.0, nb)
     m_tets = wg.tet.planes.shape[0]
     t_min = -HIT_TOL_MM
     for _ in range(MAX_SWITCHES):
