@@ -85,6 +85,8 @@ class StudyConfig:
     histories: int = 300_000  # per phase and geometry
     physics: str = "dose"  # absorbed dose (electrons transported), or "kerma"
     electron_cutoff_mev: float = 0.2
+    photon_splitting: int = 1  # copies per photon of weight 1 (TransportSettings)
+    splitting_scheme: str = "roulette"  # "repeat": XVMC's splitting along the ray
     batches: int = 10
     beam_angles_deg: tuple[float, ...] = (0.0, 120.0, 240.0)
     field_mm: float = 60.0
@@ -212,7 +214,9 @@ class _Run:
         plan = self.plan = _plan(self.target_mm, self.c, self.label_of["tumour"])
         settings = TransportSettings(n_histories=self.c.histories, n_batches=self.c.batches,
                                      seed=self.c.seed, physics=self.c.physics,
-                                     electron_cutoff_mev=self.c.electron_cutoff_mev)
+                                     electron_cutoff_mev=self.c.electron_cutoff_mev,
+                                     photon_splitting=self.c.photon_splitting,
+                                     splitting_scheme=self.c.splitting_scheme)
         self.d4 = run_dose4d(self.series, plan, settings, ct_hu=self.ph.ct,
                              phase_density=self.density, progress=self.progress)
         write_dose4d(self.d4, self.out / "dose4d")

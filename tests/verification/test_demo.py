@@ -105,6 +105,26 @@ def test_interrupted_run_leaves_previous_output_untouched(tmp_path, monkeypatch)
     assert (out / "keep.txt").read_text() == "previous run"
 
 
+def test_demo_splitting_options_reach_the_study(tmp_path, monkeypatch):
+    """`demo --photon-splitting 32 --splitting-scheme repeat` runs the study's dose with XVMC's
+    splitting along the ray; a count below 1 is refused before anything runs."""
+    from tetdose.cli import _demo
+
+    seen = {}
+
+    def fake_study(config, out, **_):  # noqa: ANN001, ANN003, ANN202
+        seen["config"] = config
+        return {"seconds": {}}
+
+    monkeypatch.setattr(_demo, "run_study", fake_study)
+    argv = ["demo", "--quick", "-q", "-o", str(tmp_path / "o"), "--histories", "2500"]
+    assert main([*argv, "--photon-splitting", "32", "--splitting-scheme", "repeat"]) == 0
+    c = seen.pop("config")
+    assert (c.photon_splitting, c.splitting_scheme, c.histories) == (32, "repeat", 2500)
+    assert main([*argv, "--photon-splitting", "0"]) == 2
+    assert not seen
+
+
 @pytest.mark.slow
 def test_demo_tells_physics_from_noise(demo):
     """Every pair of the demo with σ on both sides is reported per structure with its mean

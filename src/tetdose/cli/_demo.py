@@ -5,7 +5,9 @@ from __future__ import annotations
 import argparse
 from dataclasses import replace
 
+from tetdose.cli._common import int_at_least
 from tetdose.study import StudyConfig, run_study
+from tetdose.transport.run.settings import SPLITTING_SCHEMES
 
 
 def add_args(p: argparse.ArgumentParser) -> None:
@@ -14,12 +16,19 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--histories", type=float, help="photons per phase and geometry")
     p.add_argument("--phases", type=int, help="breathing phases (default 10)")
     p.add_argument("--seed", type=int, help="phantom and Monte Carlo seed")
+    p.add_argument("--photon-splitting", type=int_at_least(1), metavar="N",
+                   help="dose transport: copies per photon (as `tetdose dose`; default 1)")
+    p.add_argument("--splitting-scheme", choices=SPLITTING_SCHEMES,
+                   help="what splitting does (as `tetdose dose`; repeat = XVMC's splitting "
+                   "along the ray, e.g. with --photon-splitting 32 and an eighth of the histories)")
 
 
 def run(args: argparse.Namespace) -> int:
     config = StudyConfig.quick() if args.quick else StudyConfig()
     changes = {k: v for k, v in (("histories", args.histories and int(args.histories)),
-                                  ("n_phases", args.phases), ("seed", args.seed)) if v}
+                                  ("n_phases", args.phases), ("seed", args.seed),
+                                  ("photon_splitting", args.photon_splitting),
+                                  ("splitting_scheme", args.splitting_scheme)) if v}
     config = replace(config, **changes)
     summary = run_study(config, args.output, log=print, progress=not args.quiet)
     total = sum(summary["seconds"].values())
