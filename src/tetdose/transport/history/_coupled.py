@@ -71,10 +71,10 @@ from tetdose.transport.history._electron import (
     C_E_TRACKS,
     ELECTRON,
     L_E_CUTOFF,
-    L_ROULETTE,
     PHOTON,
     REPLAY,
     electron_track,
+    roulette_survives,
     water_end,
 )
 from tetdose.transport.history._interaction import REPEAT, ROULETTE, photon_interaction
@@ -133,11 +133,9 @@ def photon_track(wg, xs, ln_mu_hat, e, cell, x, y, z, u, v, w, state, p_cut, e_c
         if not alive:
             return state, n_stack
         if scheme != ROULETTE and wt < 1.0:
-            state, xi = next_uniform(state)
-            if xi >= wt:
-                ledger[L_ROULETTE] += wt * e
+            state, survives = roulette_survives(state, wt, e, ledger)
+            if not survives:
                 return state, n_stack
-            ledger[L_ROULETTE] -= (1.0 - wt) * e
             wt = 1.0
 
 

@@ -188,17 +188,28 @@ def push_weighted(stack, n_stack, sp, e, x, y, z, u, v, w, cell, wt, tally, ledg
     return n_stack
 
 
+@njit(cache=True, inline="always")
+def roulette_survives(state, wt, e, ledger):
+    """Russian roulette of a particle of weight ``wt`` < 1 carrying energy ``e`` [MeV]: it
+    survives with probability wt (then weight 1); ledger L_ROULETTE + wt·e if killed,
+    − (1 − wt)·e if it survives (module docstring). Returns (state, survives)."""
+    state, xi = next_uniform(state)
+    if xi >= wt:
+        ledger[L_ROULETTE] += wt * e
+        return state, False
+    ledger[L_ROULETTE] -= (1.0 - wt) * e
+    return state, True
+
+
 @kernel
 def roulette_photon(state, k, x, y, z, u, v, w, cell, wt, tally, ledger, counts, stack,
                     n_stack):
     """A photon of energy k [MeV] created by a particle of weight ``wt``: pushed with weight 1,
     after Russian roulette (survival wt) if wt < 1 (module docstring)."""
     if wt < 1.0:
-        state, xi = next_uniform(state)
-        if xi >= wt:
-            ledger[L_ROULETTE] += wt * k
+        state, survives = roulette_survives(state, wt, k, ledger)
+        if not survives:
             return state, n_stack
-        ledger[L_ROULETTE] -= (1.0 - wt) * k
     return state, push(stack, n_stack, PHOTON, k, x, y, z, u, v, w, cell, tally, ledger, counts)
 
 

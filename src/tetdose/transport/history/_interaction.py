@@ -30,12 +30,12 @@ from tetdose.transport.history._electron import (
     ELECTRON,
     ELECTRON_MASS_MEV,
     L_E_CUTOFF,
-    L_ROULETTE,
     PHOTON,
     POSITRON,
     REPLAY,
     push,
     push_weighted,
+    roulette_survives,
     stop_charged,
 )
 from tetdose.transport.physics._photon import (
@@ -72,11 +72,9 @@ def release(state, sp, t, x, y, z, u, v, w, cell, e_cut, wt, scheme, tally, ledg
                                         tally, ledger, counts)
         if wt < 1.0:
             e_ledger = t + (2.0 * ELECTRON_MASS_MEV if sp == POSITRON else 0.0)
-            state, xi = next_uniform(state)
-            if xi >= wt:
-                ledger[L_ROULETTE] += wt * e_ledger
+            state, survives = roulette_survives(state, wt, e_ledger, ledger)
+            if not survives:
                 return state, n_stack
-            ledger[L_ROULETTE] -= (1.0 - wt) * e_ledger
         return state, push(stack, n_stack, sp, t, x, y, z, u, v, w, cell, tally, ledger, counts)
     if wt == 1.0:
         return stop_charged(state, sp, t, x, y, z, cell, 1.0, tally, ledger, counts, stack,
