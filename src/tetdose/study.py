@@ -455,7 +455,8 @@ def tet_precision(d4: Any, tets: np.ndarray, floor_gy: float, voxel_mg: float) -
         rel = np.divide(s, d, out=np.full(len(d), np.inf), where=d > 0)
         return float(100.0 * np.median(rel))
 
-    phases = [median_pct(r.mesh_part().dose_gy, r.mesh_part().dose_std_gy) for r in d4.results]
+    parts = [r.mesh_part() for r in d4.results]
+    phases = [median_pct(p.dose_gy, p.dose_std_gy) for p in parts]
     return {"tets": int(tets.sum()), "median_tet_mass_mg": 1e3 * float(np.median(
                 acc.mass_g[tets])), "ct_voxel_mass_mg": voxel_mg,
             "tets_scored": int(sel.sum()), "scored": f"accumulated dose ≥ {floor_gy:g} Gy",

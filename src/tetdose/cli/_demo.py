@@ -17,10 +17,11 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--phases", type=int, help="breathing phases (default 10)")
     p.add_argument("--seed", type=int, help="phantom and Monte Carlo seed")
     p.add_argument("--photon-splitting", type=int_at_least(1), metavar="N",
-                   help="dose transport: copies per photon (as `tetdose dose`; default 1)")
+                   help="dose transport: copies per photon (as `tetdose dose`; the demo's "
+                   "default 32 with --splitting-scheme repeat; 1 = analog)")
     p.add_argument("--splitting-scheme", choices=SPLITTING_SCHEMES,
-                   help="what splitting does (as `tetdose dose`; repeat = XVMC's splitting "
-                   "along the ray, e.g. with --photon-splitting 32 and an eighth of the histories)")
+                   help="what splitting does (as `tetdose dose`; the demo's default repeat = "
+                   "XVMC's splitting along the ray)")
 
 
 def run(args: argparse.Namespace) -> int:
