@@ -68,22 +68,24 @@ from tetdose.transport.physics._electron import (
     sample_ms_cos,
     stopping_power,
 )
-from tetdose.transport.physics._photon import rotate_direction
+from tetdose.transport.physics._photon import rotate_cs
 
-#: Row kinds of a recorded track: a step (s₁, cos θ, φ, s₂, E_end), a δ-ray (T, cos, φ), a
-#: photon (k, cos, φ), the primary after a hard event (E, cos, φ).
+#: Row kinds of a recorded track: a step (s₁, cos θ, cos φ, sin φ, s₂, E_end), a δ-ray (T, cos,
+#: cos φ, sin φ), a photon (k, cos, cos φ, sin φ), the primary after a hard event (E, cos, cos φ,
+#: sin φ). The azimuth is stored as (cos φ, sin φ): every copy's replay rotates by it.
 R_STEP, R_DELTA, R_PHOTON, R_TURN = 0, 1, 2, 3
 #: Rows and columns of the track buffer; key: (T, u, v, w, m₀, rows) of the track it holds.
 TRACK_ROWS = 2048
-TRACK_COLUMNS = 6
+TRACK_COLUMNS = 7
 KEY_SIZE = 6
 _TWO_PI = 2.0 * math.pi
 
 
 @kernel
-def _row(trk, n, kind, a, b, c, d, e):
+def _row(trk, n, kind, a, cos_theta, phi, b, c):
     r = trk[n]
-    r[0], r[1], r[2], r[3], r[4], r[5] = kind, a, b, c, d, e
+    r[0], r[1], r[2], r[3], r[4], r[5], r[6] = (kind, a, cos_theta, math.cos(phi), math.sin(phi),
+                                                b, c)
     return n + 1
 
 
@@ -192,17 +194,17 @@ def replay_track(wg, et, trk, n_rows, m0, e, cell, x, y, z, u, v, w, wt, state, 
         r = trk[i]
         kind = int(r[0])
         if kind == R_STEP:
-            de, e_mid = e - r[5], 0.5 * (e + r[5])
-            de1 = de * r[1] / (r[1] + r[4]) if r[1] + r[4] > 0.0 else 0.0
+            de, e_mid = e - r[6], 0.5 * (e + r[6])
+            de1 = de * r[1] / (r[1] + r[5]) if r[1] + r[5] > 0.0 else 0.0
             out, cell, entry, x, y, z, dep = replay_move(wg, et, m0, e_mid, r[1], de1, wt, cell,
                                                          entry, x, y, z, u, v, w, tally, ledger,
                                                          counts, bcell, bcol, dw)
             if out == SEG_DONE:
                 m = cell_material(wg, cell)
                 mu = r[2] if m == m0 else scaled_cos(et, m0, m, e_mid, r[2])
-                u, v, w = rotate_direction(u, v, w, mu, r[3])
+                u, v, w = rotate_cs(u, v, w, mu, r[3], r[4])
                 out, cell, entry, x, y, z, dep2 = replay_move(
-                    wg, et, m0, e_mid, r[4], de - de1, wt, cell, -1, x, y, z, u, v, w, tally,
+                    wg, et, m0, e_mid, r[5], de - de1, wt, cell, -1, x, y, z, u, v, w, tally,
                     ledger, counts, bcell, bcol, dw)
                 dep += dep2
             counts[C_E_STEPS] += 1
@@ -213,19 +215,19 @@ def replay_track(wg, et, trk, n_rows, m0, e, cell, x, y, z, u, v, w, wt, state, 
                 ledger[L_LOST] += (e - dep) * wt
                 counts[C_LOST] += 1
                 return state, n_stack
-            e = r[5]
+            e = r[6]
         elif kind == R_DELTA:
-            du, dv, dz = rotate_direction(u, v, w, r[2], r[3])
+            du, dv, dz = rotate_cs(u, v, w, r[2], r[3], r[4])
             n_stack = push_weighted(stack, n_stack, ELECTRON, r[1], x, y, z, du, dv, dz, cell,
                                     wt, tally, ledger, counts)
         elif kind == R_PHOTON:
-            ku, kv, kw = rotate_direction(u, v, w, r[2], r[3])
+            ku, kv, kw = rotate_cs(u, v, w, r[2], r[3], r[4])
             state, n_stack = roulette_photon(state, r[1], x, y, z, ku, kv, kw, cell, wt, tally,
                                              ledger, counts, stack, n_stack)
         else:
             e = r[1]
             if r[2] < 1.0:
-                u, v, w = rotate_direction(u, v, w, r[2], r[3])
+                u, v, w = rotate_cs(u, v, w, r[2], r[3], r[4])
                 entry = -1
     if e > et.cutoff_mev:
         counts[C_STACK_FULL] += 1  # the track outgrew the buffer: the rest stays here

@@ -160,15 +160,21 @@ def sample_klein_nishina(energy_mev, state):
 
 @kernel
 def rotate_direction(u, v, w, cos_theta, phi):
-    """Unit vector at polar angle θ (cos θ given) and azimuth φ [rad] about (u, v, w).
+    """Unit vector at polar angle θ (cos θ given) and azimuth φ [rad] about (u, v, w)
+    (:func:`rotate_cs`)."""
+    return rotate_cs(u, v, w, cos_theta, math.cos(phi), math.sin(phi))
+
+
+@njit(cache=True, inline="always")
+def rotate_cs(u, v, w, cos_theta, cos_phi, sin_phi):
+    """Unit vector at polar angle θ (cos θ given) and azimuth φ (cos φ, sin φ given) about
+    (u, v, w).
 
     Standard rotation (e.g. PENELOPE-2018 manual eq. 1.131); the |w| → 1 limit is handled
     separately. The result is renormalised against round-off.
     """
     cos_theta = min(max(cos_theta, -1.0), 1.0)
     sin_theta = math.sqrt(max(0.0, 1.0 - cos_theta * cos_theta))
-    cos_phi = math.cos(phi)
-    sin_phi = math.sin(phi)
     s = 1.0 - w * w
     if s > 1e-12:
         root = math.sqrt(s)
