@@ -364,6 +364,17 @@ def test_cli_splitting_scheme_reaches_the_settings():
         parser.parse_args(["--histories", "100", "--splitting-scheme", "xvmc"])
 
 
+def test_cli_max_energy_loss_fraction_reaches_the_settings():
+    parser = argparse.ArgumentParser()
+    add_run_args(parser)
+    for argv, f_loss in (([], 0.25), (["--max-energy-loss-fraction", "0.5"], 0.5)):
+        args = parser.parse_args(["--histories", "100", *argv])
+        assert run_settings(args).max_energy_loss_fraction == f_loss
+    for bad in ("0.6", "0", "nan"):
+        with pytest.raises(SystemExit):
+            parser.parse_args(["--histories", "100", "--max-energy-loss-fraction", bad])
+
+
 def test_photon_majorant_bounds_every_material_between_the_nodes():
     """μ̂(E) ≥ (μ/ρ)_m(E)·ρ_max,m for every material at energies between the table's nodes (as
     the kernels interpolate), within 2 % of the largest of them; a material of density 0 (none

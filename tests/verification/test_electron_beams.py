@@ -22,10 +22,12 @@ D_max from a parabola through the peak (:func:`peak_dose`).
 The reference of the same physics is EGSnrc, run side by side (ompmc, PEGS 700icru, so the
 electron cut-off and δ-ray threshold Δ = 0.189 MeV are tetdose's): R50 and Rp within 1 mm, the
 depth dose within 2 % of D_max + 3σ beyond 2 mm, and no dependence on the step size (ESTEPE 0.25
-vs 0.05 within 0.5 mm). TG-25's relations are fits to clinical beams; EGSnrc itself misses them
-for these mono-energetic broad beams (measured: R50 24.3 / 42.0 / 85.5 mm against 25.8 / 42.9 /
-85.8, Rp 29.5 / 49.9 / 100.5 against 29.1 / 49.1 / 98.7), so tetdose is held to TG-25 as closely
-as EGSnrc is (its miss + 0.5 mm, and at least 1 mm).
+vs 0.05 within 0.5 mm); the same at ESTEPE 0.5 (the large steps of ``--max-energy-loss-fraction
+0.5``) but for the 6 MeV beam's depth dose, a strict expected failure: +2.9 % of D_max at 2–4 mm,
+−4.6 % at 13–16 mm (ESTEPE 0.25: +1.7 % / −1.6 %). TG-25's relations are fits to clinical
+beams; EGSnrc itself misses them for these mono-energetic broad beams (measured: R50 24.3 / 42.0
+/ 85.5 mm against 25.8 / 42.9 / 85.8, Rp 29.5 / 49.9 / 100.5 against 29.1 / 49.1 / 98.7), so
+tetdose is held to TG-25 as closely as EGSnrc is (its miss + 0.5 mm, and at least 1 mm).
 """
 
 from __future__ import annotations
@@ -130,16 +132,21 @@ def test_r50_and_rp_of_a_synthetic_curve():
 #: Before the multiple-scattering law had the right second moment (first moment only), Rp was
 #: 1.2–2 mm deeper than EGSnrc's and moved 1.3 mm between ESTEPE 0.25 and 0.01.
 ENERGIES_MEV = (6.0, 10.0, 20.0)
+#: ESTEPE 0.5 at 6 MeV misses the depth-dose criterion (measured: +2.9 % of D_max at 2–4 mm,
+#: −4.6 % at 13–16 mm; ESTEPE 0.25 there: +1.7 % / −1.6 %); at 10 and 20 MeV it meets it.
+_COARSE_6MEV = pytest.mark.xfail(strict=True, reason="ESTEPE 0.5 is too coarse for a 6 MeV "
+                                 "electron beam's depth dose (measured up to 4.6 % of D_max)")
 
 
 @pytest.fixture(scope="module")
 def curves() -> dict[tuple[str, float], tuple[np.ndarray, np.ndarray, np.ndarray]]:
-    """Depth-dose curves by (engine, energy): tetdose, tetdose at ESTEPE 0.05, and ompmc."""
+    """Depth-dose curves by (engine, energy): tetdose, tetdose at ESTEPE 0.05 and 0.5, ompmc."""
     pytest.importorskip("ompmc", reason="ompmc (tetdose[ompmc]) is the EGSnrc reference")
     out = {}
     for e0 in ENERGIES_MEV:
         out["tetdose", e0] = depth_dose(e0, HISTORIES)
         out["estepe 0.05", e0] = depth_dose(e0, HISTORIES, max_energy_loss_fraction=0.05)
+        out["estepe 0.5", e0] = depth_dose(e0, HISTORIES, max_energy_loss_fraction=0.5)
         out["ompmc", e0] = depth_dose(e0, HISTORIES, engine="ompmc")
     return out
 
@@ -150,16 +157,20 @@ def ranges_mm(curves, kind: str, e0_mev: float) -> np.ndarray:  # noqa: ANN001
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize("kind", ["tetdose", "estepe 0.5"])
 @pytest.mark.parametrize("e0_mev", ENERGIES_MEV)
-def test_broad_electron_beam_r50_and_rp_match_egsnrc(curves, e0_mev):
-    ours, egs = ranges_mm(curves, "tetdose", e0_mev), ranges_mm(curves, "ompmc", e0_mev)
+def test_broad_electron_beam_r50_and_rp_match_egsnrc(curves, e0_mev, kind):
+    ours, egs = ranges_mm(curves, kind, e0_mev), ranges_mm(curves, "ompmc", e0_mev)
     assert np.all(np.abs(ours - egs) <= 1.0), (ours, egs)
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("e0_mev", ENERGIES_MEV)
-def test_broad_electron_beam_depth_dose_matches_egsnrc(curves, e0_mev):
-    z, d, sd = curves["tetdose", e0_mev]
+@pytest.mark.parametrize(("e0_mev", "kind"), [
+    *((e0, "tetdose") for e0 in ENERGIES_MEV),
+    pytest.param(6.0, "estepe 0.5", marks=_COARSE_6MEV), (10.0, "estepe 0.5"),
+    (20.0, "estepe 0.5")])
+def test_broad_electron_beam_depth_dose_matches_egsnrc(curves, e0_mev, kind):
+    z, d, sd = curves[kind, e0_mev]
     _, d_ref, sd_ref = curves["ompmc", e0_mev]
     beyond = z > 2.0
     allowed = 0.02 * peak_dose(z, d_ref) + 3.0 * np.hypot(sd, sd_ref)
@@ -167,9 +178,10 @@ def test_broad_electron_beam_depth_dose_matches_egsnrc(curves, e0_mev):
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize("kind", ["tetdose", "estepe 0.5"])
 @pytest.mark.parametrize("e0_mev", ENERGIES_MEV)
-def test_broad_electron_beam_does_not_depend_on_the_step_size(curves, e0_mev):
-    shift = ranges_mm(curves, "tetdose", e0_mev) - ranges_mm(curves, "estepe 0.05", e0_mev)
+def test_broad_electron_beam_does_not_depend_on_the_step_size(curves, e0_mev, kind):
+    shift = ranges_mm(curves, kind, e0_mev) - ranges_mm(curves, "estepe 0.05", e0_mev)
     assert np.all(np.abs(shift) <= 0.5), shift
 
 

@@ -62,11 +62,13 @@ def _bin(e: np.ndarray, m: np.ndarray, lo: int, hi: int) -> tuple[float, float]:
     return float(per_batch.mean()), float(per_batch.std(ddof=1) / np.sqrt(len(per_batch)))
 
 
-def _compare(beam: str, field_mm: float, slab: bool, n_tetdose: int, n_ompmc: int) -> list[str]:
+def _compare(beam: str, field_mm: float, slab: bool, n_tetdose: int, n_ompmc: int,
+             **tetdose_settings: object) -> list[str]:
     rho, lab = _phantom(slab)
     plan = _plan(beam, field_mm)
     t = simulate(rho, plan, TransportSettings(n_tetdose, 10, 11, energy_cutoff_mev=CUTOFF_MEV,
-                                              electron_cutoff_mev=CUTOFF_MEV),
+                                              electron_cutoff_mev=CUTOFF_MEV,
+                                              **tetdose_settings),
                  labels=lab, progress=False)
     o = simulate_ompmc(rho, plan, TransportSettings(n_ompmc, 10, 12, energy_cutoff_mev=CUTOFF_MEV),
                        labels=lab, progress=False,
@@ -97,6 +99,14 @@ def _compare(beam: str, field_mm: float, slab: bool, n_tetdose: int, n_ompmc: in
 @pytest.mark.slow
 def test_2mev_water_lung_water_slab_30mm_field_matches_ompmc():
     assert _compare("2MeV", 30.0, True, 1_000_000, 40_000) == []
+
+
+@pytest.mark.slow
+def test_2mev_slab_matches_ompmc_with_splitting_along_the_ray_and_large_steps():
+    """The fast setting: XVMC's splitting along the ray (N = 32, tracks replayed across water
+    and lung) with ESTEPE 0.5, on the same slab, against the same EGSnrc run."""
+    assert _compare("2MeV", 30.0, True, 150_000, 40_000, photon_splitting=32,
+                    splitting_scheme="repeat", max_energy_loss_fraction=0.5) == []
 
 
 @pytest.mark.slow
