@@ -128,7 +128,7 @@ def add_run_args(parser: argparse.ArgumentParser, per: str = "") -> None:
                         default=MAX_ENERGY_LOSS_FRACTION, metavar="F",
                         help="dose mode: the largest fraction of its energy an electron loses "
                         f"in one step (EGSnrc's ESTEPE; default {MAX_ENERGY_LOSS_FRACTION:g}). "
-                        "0.5 is 1.5× faster with --splitting-scheme repeat and passes the Fano "
+                        "0.5 is 1.1–1.5× more efficient with --splitting-scheme repeat and passes the Fano "
                         "test and EGSnrc's 2 MeV water/lung slab, but moves a 6 MeV electron "
                         "beam's depth dose by up to 4.6 %% of D_max")
     parser.add_argument("--photon-splitting", type=int_at_least(1), default=PHOTON_SPLITTING,
