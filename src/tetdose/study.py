@@ -89,6 +89,9 @@ class StudyConfig:
     #: tumour (12.8 % → 6.2 % median per-tet σ at the same dose time, 3·10⁵ analog photons).
     photon_splitting: int = 32
     splitting_scheme: str = "repeat"
+    #: Source photons from scrambled Sobol points (TransportSettings.quasi_random): with the
+    #: splitting, the tumour's median per-tet σ² 1.06–1.08× lower (demo, same time).
+    quasi_random: bool = True
     kerma_histories: int = 300_000  # the dose-vs-kerma comparison's (analog kerma)
     batches: int = 10
     beam_angles_deg: tuple[float, ...] = (0.0, 120.0, 240.0)
@@ -220,7 +223,8 @@ class _Run:
                                      seed=self.c.seed, physics=self.c.physics,
                                      electron_cutoff_mev=self.c.electron_cutoff_mev,
                                      photon_splitting=self.c.photon_splitting,
-                                     splitting_scheme=self.c.splitting_scheme)
+                                     splitting_scheme=self.c.splitting_scheme,
+                                     quasi_random=self.c.quasi_random)
         self.d4 = run_dose4d(self.series, plan, settings, ct_hu=self.ph.ct,
                              phase_density=self.density, progress=self.progress)
         write_dose4d(self.d4, self.out / "dose4d")
@@ -239,6 +243,7 @@ class _Run:
             if name in MOVING and (self.series.reference.region == label).any()}
         split = (f" split {self.c.photon_splitting}× ({self.c.splitting_scheme})"
                  if self.c.photon_splitting > 1 else "")
+        split += ", quasi-random" if self.c.quasi_random else ""
         return f"{self.c.physics}: {self.c.histories} histories{split} × {self.c.n_phases} " \
                f"phases × 2 worlds (organ mesh in the CT, CT alone); ledger closes to " \
                f"{closure:.1e}, {lost} lost photons"

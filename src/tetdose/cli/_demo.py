@@ -22,6 +22,9 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--splitting-scheme", choices=SPLITTING_SCHEMES,
                    help="what splitting does (as `tetdose dose`; the demo's default repeat = "
                    "XVMC's splitting along the ray)")
+    p.add_argument("--quasi-random", action=argparse.BooleanOptionalAction, default=None,
+                   help="source photons from scrambled Sobol points (as `tetdose dose`; on by "
+                   "default in the demo)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -30,6 +33,8 @@ def run(args: argparse.Namespace) -> int:
                                   ("n_phases", args.phases), ("seed", args.seed),
                                   ("photon_splitting", args.photon_splitting),
                                   ("splitting_scheme", args.splitting_scheme)) if v}
+    if args.quasi_random is not None:
+        changes["quasi_random"] = args.quasi_random
     config = replace(config, **changes)
     summary = run_study(config, args.output, log=print, progress=not args.quiet)
     total = sum(summary["seconds"].values())

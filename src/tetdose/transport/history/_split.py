@@ -37,7 +37,7 @@ from numba import njit
 from tetdose._constants import MM_PER_CM
 from tetdose._jit import kernel
 from tetdose._random import next_uniform, seed_for
-from tetdose.transport.geometry._tet import exit_face, next_tet
+from tetdose.transport.geometry._tet import exit_face, next_tet, prefetch_neighbours
 from tetdose.transport.geometry._voxel import dda_init, dda_step
 from tetdose.transport.geometry._walk import (
     MAX_SWITCHES,
@@ -138,6 +138,7 @@ def mesh_sites(g, xs, e, k, x, y, z, u, v, w, sites, i, n, acc, counts):
         if m != m_prev:
             mu, _ = transport_coefficients(xs, m, e)
             m_prev = m
+        prefetch_neighbours(g, k, entry, True, g.density[:0, 0])
         f, t = exit_face(g, k, x, y, z, u, v, w, entry)
         if f < 0 or t <= 0.0 or g.link[k, f] < 0:
             counts[C_CROSSINGS] += crossings
