@@ -375,6 +375,18 @@ def test_cli_max_energy_loss_fraction_reaches_the_settings():
             parser.parse_args(["--histories", "100", "--max-energy-loss-fraction", bad])
 
 
+def test_cli_secondary_photon_splitting_reaches_the_settings():
+    parser = argparse.ArgumentParser()
+    add_run_args(parser)
+    args = parser.parse_args(["--histories", "100", "--photon-splitting", "64",
+                              "--splitting-scheme", "repeat", "--secondary-photon-splitting", "32"])
+    st = run_settings(args)
+    assert (st.photon_splitting, st.secondary_photon_splitting, st.secondary_copies) == (64, 32, 32)
+    assert run_settings(parser.parse_args(["--histories", "100"])).secondary_photon_splitting is None
+    with pytest.raises(SystemExit):
+        parser.parse_args(["--histories", "100", "--secondary-photon-splitting", "0"])
+
+
 def test_photon_majorant_bounds_every_material_between_the_nodes():
     """μ̂(E) ≥ (μ/ρ)_m(E)·ρ_max,m for every material at energies between the table's nodes (as
     the kernels interpolate), within 2 % of the largest of them; a material of density 0 (none

@@ -8,6 +8,7 @@ run's time runs coupled histories, so the estimate counts the electrons."""
 from __future__ import annotations
 
 import warnings
+from dataclasses import replace
 from functools import lru_cache
 from pathlib import Path
 
@@ -67,28 +68,30 @@ def _analog_slab() -> tuple[np.ndarray, np.ndarray, float]:
     return m, s, r.record()["electron_tracks"] / 60_000
 
 
-@pytest.mark.parametrize(("scheme", "n", "quasi"), [("roulette", 30_000, False),
-                                                     ("follow", 12_000, False),
-                                                     ("repeat", 12_000, False),
-                                                     ("repeat", 12_000, True)])
-def test_photon_splitting_gives_the_analog_dose_on_a_water_lung_bone_slab(scheme, n, quasi):
+@pytest.mark.parametrize(("scheme", "n", "extra"), [
+    ("roulette", 30_000, {}), ("follow", 12_000, {}), ("repeat", 12_000, {}),
+    ("repeat", 12_000, {"quasi_random": True}),
+    ("repeat", 8_000, {"photon_splitting": 8, "secondary_photon_splitting": 2})])
+def test_photon_splitting_gives_the_analog_dose_on_a_water_lung_bone_slab(scheme, n, extra):
     """Splitting 4 with Russian roulette for the electrons (EGSnrc), following them with weight
     1/4 and rouletting the secondary photons (XVMC), or that with one electron track, sampled in
     the first copy's medium, replayed for the four copies and scaled to lung and bone (XVMC's
-    history repetition), also with the source photons from scrambled Sobol points: the layer
-    doses agree with the analog run within 3σ, the ledger closes in every batch with a roulette
-    column near 0; following or replaying sets about four times as many electron tracks in
-    motion per source photon."""
+    history repetition), also with the source photons from scrambled Sobol points, or with the
+    source photon in 8 copies and every later photon in 2: the layer doses agree with the
+    analog run within 3σ, the ledger closes in every batch with a roulette column near 0;
+    following or replaying sets about four times as many electron tracks in motion per source
+    photon."""
     rho, lab = slab_phantom()
-    r = simulate(rho, SLAB_PLAN, TransportSettings(n, 10, 6, electron_cutoff_mev=0.1,
-                                                   photon_splitting=4, splitting_scheme=scheme,
-                                                   quasi_random=quasi),
-                 labels=lab, progress=False)
+    st = TransportSettings(n, 10, 6, electron_cutoff_mev=0.1,
+                           **{"photon_splitting": 4, "splitting_scheme": scheme, **extra})
+    r = simulate(rho, SLAB_PLAN, st, labels=lab, progress=False)
     _closes(r)
     assert r.lost_photons == 0
     assert r.ledger["roulette_mev"] != 0.0  # the roulette ran
     assert abs(r.ledger["roulette_mev"]) < 0.02 * r.ledger["source_mev"]
-    assert r.record()["photon_splitting"] == 4 and r.record()["splitting_scheme"] == scheme
+    rec = r.record()
+    assert rec["photon_splitting"] == st.photon_splitting and rec["splitting_scheme"] == scheme
+    assert rec.get("secondary_photon_splitting") == extra.get("secondary_photon_splitting")
     m1, s1, tracks1 = _analog_slab()
     m4, s4 = _layer_dose(r, rho.grid)
     z = (m4 - m1) / np.hypot(s1, s4)
@@ -210,6 +213,14 @@ def test_photon_splitting_setting_is_checked():
         TransportSettings(100, 2, photon_splitting=0)
     with pytest.raises(PlanError, match="splitting_scheme"):
         TransportSettings(100, 2, splitting_scheme="xvmc")
+    with pytest.raises(PlanError, match="secondary_photon_splitting"):
+        TransportSettings(100, 2, photon_splitting=8, secondary_photon_splitting=16,
+                          splitting_scheme="repeat")
+    with pytest.raises(PlanError, match="needs splitting_scheme='repeat'"):
+        TransportSettings(100, 2, photon_splitting=8, secondary_photon_splitting=4)
+    st = TransportSettings(100, 2, photon_splitting=8, splitting_scheme="repeat")
+    assert st.secondary_copies == 8
+    assert replace(st, secondary_photon_splitting=2).secondary_copies == 2
 
 
 def test_split_dose_same_bits_with_one_or_two_threads(tmp_path):

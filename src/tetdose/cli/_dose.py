@@ -142,6 +142,10 @@ def add_run_args(parser: argparse.ArgumentParser, per: str = "") -> None:
                         "(XVMC); repeat = XVMC's splitting along the ray: every photon of "
                         "weight 1 split into N copies at stratified depths, one shared "
                         "interaction and one electron track replayed from each copy's site")
+    parser.add_argument("--secondary-photon-splitting", type=int_at_least(1), metavar="N2",
+                        help="with --splitting-scheme repeat: copies of every photon of weight 1 "
+                        "after the source photon (the scattered photon kept, bremsstrahlung), at "
+                        "most --photon-splitting (default: as many as the source photon's)")
     parser.add_argument("--range-rejection-mev", type=float_in(0.0, 20.0),
                         default=RANGE_REJECTION_MEV, metavar="MEV",
                         help="dose mode: an electron up to this energy that cannot leave its "
@@ -198,6 +202,7 @@ def run_settings(args: argparse.Namespace, **kw: Any) -> Any:  # noqa: ANN401
                              max_energy_loss_fraction=args.max_energy_loss_fraction,
                              photon_splitting=args.photon_splitting,
                              splitting_scheme=args.splitting_scheme,
+                             secondary_photon_splitting=args.secondary_photon_splitting,
                              range_rejection_mev=args.range_rejection_mev,
                              photon_tracking=args.photon_tracking, dose_to=args.dose_to,
                              quasi_random=args.quasi_random, **kw)

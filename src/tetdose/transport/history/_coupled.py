@@ -169,12 +169,13 @@ def wall_column(wg, cell, x, y, z):
 
 @kernel
 def coupled_history(wg, xs, ln_mu_hat, et, sig_hat, sp, e, cell, x, y, z, u, v, w, state, p_cut,
-                    f_loss, wt, scheme, n_split, rr_mev, tally, ledger, counts, stack, bcell, bcol,
-                    sites, trk, key, dw):
+                    f_loss, wt, scheme, n_split, n_split2, rr_mev, tally, ledger, counts, stack,
+                    bcell, bcol, sites, trk, key, dw):
     """Follow one source particle (species ``sp``, energy [MeV], already in global ``cell``,
     statistical weight ``wt``: 1, or 1/n_split for a copy of a split photon, whose electrons
     ``scheme`` rouletted or followed with weight wt; with REPEAT every photon of weight 1 is
-    split into ``n_split`` copies along its ray (``sites`` their buffer) and their electrons are
+    split along its ray, the source photon into ``n_split`` copies and every later one into
+    ``n_split2`` ≤ n_split (``sites`` their buffer), and their electrons are
     replayed from the track buffer ``trk``/``key`` (:mod:`._split`, :mod:`._repeat`)) and every
     secondary to the end;
     electrons of at most ``rr_mev`` [MeV] are range-rejected (module docstring; 0: never);
@@ -182,11 +183,13 @@ def coupled_history(wg, xs, ln_mu_hat, et, sig_hat, sp, e, cell, x, y, z, u, v, 
     walk it); ``dw`` the dose-to-water sums of the e± tracks
     (:class:`~tetdose.transport.history._electron.WaterTally`). Returns the RNG state."""
     n_stack = 0
+    n_now = n_split  # the source photon's copies; n_split2 for every later photon
     while True:
         if sp == PHOTON:
             state, n_stack = photon_track(wg, xs, ln_mu_hat, e, cell, x, y, z, u, v, w, state,
-                                          p_cut, et.cutoff_mev, wt, scheme, n_split, sites,
+                                          p_cut, et.cutoff_mev, wt, scheme, n_now, sites,
                                           tally, ledger, counts, stack, n_stack)
+            n_now = n_split2
         elif ((sp == ELECTRON or sp == REPLAY) and e <= rr_mev
               and range_of(et, cell_material(wg, cell), ELECTRON, e) * MM_PER_CM
               < wall_column(wg, cell, x, y, z)):

@@ -68,8 +68,8 @@ def _sample_group(wg, src_g, src_e, src_p, vol, group_cdf, state, q):
 @njit(cache=True, parallel=True)
 def run_world_dose(tet, vox, tri_lo, tri_n, tri_start, tri_items, xs, ln_mu_hat, et, sig_hat,
                    src_g, src_e, src_p, vol, group_cdf, seed, stream, n_hist, n_batches, b_start,
-                   b_stop, o_from, o_to, qmc, photon_cutoff, f_loss, n_split, scheme, rr_mev,
-                   energy, ledger, counts, l_water, water):
+                   b_stop, o_from, o_to, qmc, photon_cutoff, f_loss, n_split, n_split2, scheme,
+                   rr_mev, energy, ledger, counts, l_water, water):
     """Run histories ``o_from … o_to−1`` of batches ``b_start … b_stop−1`` (as
     :func:`~._batches.run_world`): batch b adds to row
     ``b − b_start`` of energy [MeV per cell], ledger (:data:`N_LEDGER_DOSE` columns) and counts
@@ -77,7 +77,8 @@ def run_world_dose(tet, vox, tri_lo, tri_n, tri_start, tri_items, xs, ln_mu_hat,
     through the mesh (empty: they walk it), ``et`` electron tables, ``sig_hat`` their
     hard-event majorant,
     ``photon_cutoff`` [MeV], ``f_loss`` the largest energy-loss fraction per electron step,
-    ``n_split`` the copies of each source photon (1: no splitting), ``scheme`` what becomes of
+    ``n_split`` the copies of each source photon (1: no splitting; ``n_split2`` ≤ n_split those
+    of a later photon of weight 1 with ``scheme`` 2), ``scheme`` what becomes of
     their electrons (0 roulette, 1 followed with weight 1/n_split, 2 one track replayed for
     every copy, :mod:`tetdose.transport.history._repeat`), ``rr_mev`` the range
     rejection's largest electron energy [MeV] (0: off), ``qmc`` the quasi-random source points
@@ -117,7 +118,7 @@ def run_world_dose(tet, vox, tri_lo, tri_n, tri_start, tri_items, xs, ln_mu_hat,
             for _ in range(copies):
                 state = coupled_history(wg, xs, ln_mu_hat, et, sig_hat, sp, e, cell, x, y, z,
                                         u, v, w, state, photon_cutoff, f_loss, wt, sch, n_split,
-                                        rr_mev, tally, led, cnt, stack, bcell, bcol, sites, trk,
-                                        key, dw)
+                                        n_split2, rr_mev, tally, led, cnt, stack, bcell, bcol,
+                                        sites, trk, key, dw)
         ledger[b - b_start, :] = led
         counts[b - b_start, :] = cnt

@@ -137,6 +137,7 @@ def dose_rows_call(job, xs: CrossSections, settings: TransportSettings,  # noqa:
                        ps.volume, ps.group_cdf, settings.seed, settings.stream,
                        settings.n_histories, settings.n_batches, b_start, b_stop, o_from, o_to,
                        qmc, settings.energy_cutoff_mev, settings.max_energy_loss_fraction,
-                       settings.photon_splitting, scheme, settings.range_rejection_mev, energy,
+                       settings.photon_splitting, settings.secondary_copies, scheme,
+                       settings.range_rejection_mev, energy,
                        ledger, counts, l_water, water)
     return call

@@ -379,6 +379,8 @@ def physics_record(settings: TransportSettings) -> dict[str, object]:
                    splitting_scheme=settings.splitting_scheme,
                    range_rejection_mev=settings.range_rejection_mev,
                    photon_tracking=settings.photon_tracking)
+        if settings.secondary_photon_splitting is not None:
+            rec["secondary_photon_splitting"] = settings.secondary_photon_splitting
     rec["dose_to"] = settings.dose_to
     if settings.quasi_random:
         rec["quasi_random"] = True

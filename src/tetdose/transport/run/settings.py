@@ -15,7 +15,10 @@ roulette with the secondary photons (XVMC's scheme); ``"repeat"`` splits every p
 1 (not only the source photons) into n copies whose interaction sites are stratified along its
 ray, share one interaction and one electron track, sampled once and replayed from each copy's
 site, scaled to the local medium (XVMC's splitting with electron history repetition;
-:mod:`tetdose.transport.history._split`, :mod:`tetdose.transport.history._repeat`). ``range_rejection_mev``
+:mod:`tetdose.transport.history._split`, :mod:`tetdose.transport.history._repeat`);
+``secondary_photon_splitting`` n₂ ≤ n splits the photons of weight 1 after the source photon
+(the scattered photon kept, bremsstrahlung and annihilation photons of unweighted e±) into n₂
+copies instead (None: n). ``range_rejection_mev``
 E: an electron of at most E starting in a voxel or tet it cannot leave deposits its energy there
 at once (EGSnrc's ESAVE; only the hard bremsstrahlung it would have radiated stays too; 0: off).
 The estimator is ``"track_length"`` (kerma default) or ``"analog"``; dose mode scores the analog
@@ -90,6 +93,9 @@ class TransportSettings:
     #: Electrons of split photons: "roulette", "follow" (weight 1/n) or "repeat" (one replayed
     #: track, weight 1/n).
     splitting_scheme: str = "roulette"
+    #: With "repeat": copies of every photon of weight 1 after the source photon (1 ≤ n₂ ≤
+    #: photon_splitting); None: photon_splitting.
+    secondary_photon_splitting: int | None = None
     #: Range rejection below this electron energy [MeV] in cells it cannot leave; 0: off.
     range_rejection_mev: float = RANGE_REJECTION_MEV
     #: Dose mode's photon flights through the mesh: "woodcock" (delta tracking) or "walk".
@@ -136,6 +142,13 @@ class TransportSettings:
         if not 1 <= int(self.photon_splitting) <= 1000:
             raise PlanError(f"photon_splitting must be an integer in [1, 1000] (1 = none), got "
                             f"{self.photon_splitting}")
+        n2 = self.secondary_photon_splitting
+        if n2 is not None and not 1 <= int(n2) <= int(self.photon_splitting):
+            raise PlanError(f"secondary_photon_splitting must be an integer in [1, "
+                            f"photon_splitting = {self.photon_splitting}], got {n2}")
+        if n2 is not None and self.splitting_scheme != "repeat":
+            raise PlanError("secondary_photon_splitting splits the photons after the source "
+                            "photon along their ray: it needs splitting_scheme='repeat'")
         if self.dose_to not in DOSE_TO:
             raise PlanError(f"dose_to {self.dose_to!r} is unknown; use one of {DOSE_TO}")
         if self.dose_to == "water" and self.physics != "dose":
@@ -153,6 +166,13 @@ class TransportSettings:
         object.__setattr__(self, "range_rejection_mev", float(self.range_rejection_mev))
         for name in ("n_histories", "n_batches", "seed", "stream", "photon_splitting"):
             object.__setattr__(self, name, int(getattr(self, name)))
+        if n2 is not None:
+            object.__setattr__(self, "secondary_photon_splitting", int(n2))
+
+    @property
+    def secondary_copies(self) -> int:
+        """Copies of a photon of weight 1 after the source photon (the kernels' n₂)."""
+        return self.secondary_photon_splitting or self.photon_splitting
 
     def check_tally_size(self, n_cells: int) -> None:
         water = self.dose_to == "water" and self.physics == "dose"  # + its two sums per cell
