@@ -107,8 +107,10 @@ def test_interrupted_run_leaves_previous_output_untouched(tmp_path, monkeypatch)
 
 def test_demo_splitting_options_reach_the_study(tmp_path, monkeypatch):
     """`demo --photon-splitting 32 --splitting-scheme repeat` runs the study's dose with XVMC's
-    splitting along the ray, with quasi-random source photons unless `--no-quasi-random`; a
-    count below 1 is refused before anything runs."""
+    splitting along the ray, with quasi-random source photons unless `--no-quasi-random`; the
+    default splits the source photon 64 times and later photons 32 times, a given count applies
+    to every photon unless `--secondary-photon-splitting` says otherwise; a count below 1 is
+    refused before anything runs."""
     from tetdose.cli import _demo
 
     seen = {}
@@ -122,7 +124,15 @@ def test_demo_splitting_options_reach_the_study(tmp_path, monkeypatch):
     assert main([*argv, "--photon-splitting", "32", "--splitting-scheme", "repeat"]) == 0
     c = seen.pop("config")
     assert (c.photon_splitting, c.splitting_scheme, c.histories) == (32, "repeat", 2500)
-    assert c.quasi_random  # the demo's default
+    assert c.secondary_photon_splitting is None and c.quasi_random  # the demo's default
+    assert main(argv) == 0
+    c = seen.pop("config")
+    assert (c.photon_splitting, c.secondary_photon_splitting, c.splitting_scheme) == (
+        64, 32, "repeat")
+    assert main([*argv, "--photon-splitting", "16", "--secondary-photon-splitting", "4"]) == 0
+    assert seen.pop("config").secondary_photon_splitting == 4
+    assert main([*argv, "--splitting-scheme", "follow"]) == 0
+    assert seen.pop("config").secondary_photon_splitting is None
     assert main([*argv, "--no-quasi-random"]) == 0
     assert not seen.pop("config").quasi_random
     assert main([*argv, "--photon-splitting", "0"]) == 2

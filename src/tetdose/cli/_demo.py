@@ -17,11 +17,14 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--phases", type=int, help="breathing phases (default 10)")
     p.add_argument("--seed", type=int, help="phantom and Monte Carlo seed")
     p.add_argument("--photon-splitting", type=int_at_least(1), metavar="N",
-                   help="dose transport: copies per photon (as `tetdose dose`; the demo's "
-                   "default 32 with --splitting-scheme repeat; 1 = analog)")
+                   help="dose transport: copies per source photon (as `tetdose dose`; the "
+                   "demo's default 64 with --splitting-scheme repeat; 1 = analog)")
     p.add_argument("--splitting-scheme", choices=SPLITTING_SCHEMES,
                    help="what splitting does (as `tetdose dose`; the demo's default repeat = "
                    "XVMC's splitting along the ray)")
+    p.add_argument("--secondary-photon-splitting", type=int_at_least(1), metavar="N2",
+                   help="copies of every later photon of weight 1 (as `tetdose dose`; the "
+                   "demo's default 32)")
     p.add_argument("--quasi-random", action=argparse.BooleanOptionalAction, default=None,
                    help="source photons from scrambled Sobol points (as `tetdose dose`; on by "
                    "default in the demo)")
@@ -32,9 +35,14 @@ def run(args: argparse.Namespace) -> int:
     changes = {k: v for k, v in (("histories", args.histories and int(args.histories)),
                                   ("n_phases", args.phases), ("seed", args.seed),
                                   ("photon_splitting", args.photon_splitting),
-                                  ("splitting_scheme", args.splitting_scheme)) if v}
+                                  ("splitting_scheme", args.splitting_scheme),
+                                  ("secondary_photon_splitting",
+                                   args.secondary_photon_splitting)) if v}
     if args.quasi_random is not None:
         changes["quasi_random"] = args.quasi_random
+    if ((args.photon_splitting and not args.secondary_photon_splitting)
+            or args.splitting_scheme not in (None, "repeat")):
+        changes["secondary_photon_splitting"] = None  # as `tetdose dose`: N for every photon
     config = replace(config, **changes)
     summary = run_study(config, args.output, log=print, progress=not args.quiet)
     total = sum(summary["seconds"].values())
