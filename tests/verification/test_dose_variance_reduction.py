@@ -261,8 +261,9 @@ def test_variance_reduction_is_unbiased_on_the_demo_phase_0():
     """The demo's phantom at phase 0 (its CT through the Schneider calibration, its labels and
     materials) under the demo's 6 MV fields: the mean dose in the tumour, lung, bone, heart and body
     with range rejection, with photon splitting, and with XVMC's splitting along the ray (its
-    replayed tracks scaled across the thorax's media; also as the demo runs it, 32 copies with
-    quasi-random source photons), agree with the analog run within 3σ."""
+    replayed tracks scaled across the thorax's media; also as the demo runs it, the source photon
+    in 64 copies, later photons in 32, quasi-random source photons), agree with the analog run
+    within 3σ."""
     from tetdose.core.calibration import HUCalibration
     from tetdose.phantoms import make_phantom
     from tetdose.study import StudyConfig, _plan
@@ -283,9 +284,9 @@ def test_variance_reduction_is_unbiased_on_the_demo_phase_0():
                      ("splitting 4", {"range_rejection_mev": 0.0, "photon_splitting": 4}),
                      ("along the ray 16", {"photon_splitting": 16,
                                            "splitting_scheme": "repeat"}),
-                     ("along the ray 32, quasi-random", {"photon_splitting": 32,
-                                                         "splitting_scheme": "repeat",
-                                                         "quasi_random": True})):
+                     ("along the ray 64 / 32, quasi-random", {
+                         "photon_splitting": 64, "secondary_photon_splitting": 32,
+                         "splitting_scheme": "repeat", "quasi_random": True})):
         r = simulate(rho, plan, TransportSettings(200_000, 20, 11, **kw), labels=ph.labels,
                      progress=False)
         _closes(r)
