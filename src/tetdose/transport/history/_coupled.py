@@ -183,7 +183,7 @@ def coupled_history(wg, xs, ln_mu_hat, et, sig_hat, sp, e, cell, x, y, z, u, v, 
     walk it); ``dw`` the dose-to-water sums of the e± tracks
     (:class:`~tetdose.transport.history._electron.WaterTally`). Returns the RNG state."""
     n_stack = 0
-    n_now = n_split  # the source photon's copies; n_split2 for every later photon
+    n_now = n_split if sp == PHOTON else n_split2  # the source photon's copies, or a later one's
     while True:
         if sp == PHOTON:
             state, n_stack = photon_track(wg, xs, ln_mu_hat, e, cell, x, y, z, u, v, w, state,
