@@ -101,12 +101,24 @@ def test_2mev_water_lung_water_slab_30mm_field_matches_ompmc():
     assert _compare("2MeV", 30.0, True, 1_000_000, 40_000) == []
 
 
+#: The recommended fast setting (docs/theory.md): XVMC's splitting along the ray, the source
+#: photon in 64 copies and later photons in 32, tracks replayed across media, quasi-random
+#: source photons.
+FAST = {"photon_splitting": 64, "secondary_photon_splitting": 32, "splitting_scheme": "repeat",
+        "quasi_random": True}
+
+
 @pytest.mark.slow
 def test_2mev_slab_matches_ompmc_with_splitting_along_the_ray_and_large_steps():
-    """The fast setting: XVMC's splitting along the ray (N = 32, tracks replayed across water
-    and lung) with ESTEPE 0.5, on the same slab, against the same EGSnrc run."""
-    assert _compare("2MeV", 30.0, True, 150_000, 40_000, photon_splitting=32,
-                    splitting_scheme="repeat", max_energy_loss_fraction=0.5) == []
+    """The fast setting with ESTEPE 0.5, on the same slab, against the same EGSnrc run."""
+    assert _compare("2MeV", 30.0, True, 150_000, 40_000, max_energy_loss_fraction=0.5,
+                    **FAST) == []
+
+
+@pytest.mark.slow
+def test_6mv_water_100mm_field_matches_ompmc_with_the_fast_setting():
+    """The fast setting at the default step size, 6 MV in water, against EGSnrc."""
+    assert _compare("6MV", 100.0, False, 150_000, 40_000, **FAST) == []
 
 
 @pytest.mark.slow
