@@ -106,10 +106,11 @@ def test_segment_columns_per_tet_match_brute_force(jittered):
         ref = {kk: _column_to({kk: c}, np.inf) for kk, c in chords.items()}
         got = dict(zip(bcell[:nb].tolist(), bcol[:nb].tolist(), strict=True))
         assert out == SEG_ESCAPED
-        assert set(got) == {kk for kk, c in ref.items() if c > 1e-12}
+        # the kernel's face planes are float32: within 2⁻²⁴·|c| (< 3·10⁻⁶ mm here) of the vertices
+        assert {kk for kk, c in ref.items() if c > 1e-5} <= set(got)
         for kk, c in got.items():
-            assert c == pytest.approx(ref[kk], rel=1e-9, abs=1e-9)
-        assert 1e4 - left == pytest.approx(sum(ref.values()), rel=1e-9)
+            assert c == pytest.approx(ref.get(kk, 0.0), rel=1e-9, abs=1e-5)
+        assert 1e4 - left == pytest.approx(sum(ref.values()), rel=1e-9, abs=1e-5)
 
 
 def test_segment_ends_where_the_column_is_used_up(jittered):

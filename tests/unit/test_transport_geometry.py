@@ -15,9 +15,9 @@ import pytest
 
 from tetdose._constants import MM_PER_CM
 from tetdose.core.image import Image, ImageGrid
-from tetdose.core.mesh import TetMesh
+from tetdose.core.mesh import FACE_VERTICES, TetMesh
 from tetdose.transport import mesh_geometry, morton_order
-from tetdose.transport.geometry._tet import enter_mesh, exit_face, locate_point
+from tetdose.transport.geometry._tet import LOCATE_TOL_MM, enter_mesh, exit_face, locate_point
 from tetdose.transport.geometry._voxel import VoxelGeometry
 from tetdose.transport.geometry._world import start_cell
 from tetdose.transport.geometry.world import voxel_world
@@ -61,6 +61,26 @@ def _reference_chords(mesh, rho, p, d):
     return out
 
 
+def test_kernel_planes_are_float32_one_per_shared_face_and_through_the_vertices():
+    # far from the origin, where float32 offsets round most (|c| up to 640 mm)
+    mesh = box_mesh((3, 3, 3), (30.0, 30.0, 30.0), origin_mm=(-600.0, 250.0, 400.0), jitter=0.25)
+    g = mesh_geometry(mesh, np.ones(mesh.n_points), np.zeros(mesh.n_tets, dtype=np.intp))
+    assert g.planes.dtype == np.float32 and g.link.dtype == np.int32
+    assert g.planes.ctypes.data % 64 == 0  # one tet's planes: one cache line
+    k, f = np.nonzero(g.link >= 0)
+    k2, f2 = g.link[k, f] >> 2, g.link[k, f] & 3
+    np.testing.assert_array_equal(g.planes[k2, f2], -g.planes[k, f])  # every point on one side
+    pl = g.planes.astype(np.float64)
+    assert np.all(np.abs(np.linalg.norm(pl[..., :3], axis=2) - 1.0) < 2e-7)
+    verts = mesh.points_mm[mesh.tets[:, FACE_VERTICES]]  # (M, 4, 3 vertices, 3)
+    miss = np.einsum("mfi,mfvi->mfv", pl[..., :3], verts) - pl[..., 3:]
+    # the offset's rounding (2⁻²⁴|c|) and the normal's over an edge (2⁻²⁴·√3·15 mm)
+    assert np.abs(miss).max() <= 2.0**-24 * np.abs(pl[..., 3]).max() + 2.0**-24 * 30.0
+    # each tet's own centroid is strictly inside its planes
+    cen = mesh.points_mm[mesh.tets].mean(axis=1)
+    assert np.all(np.einsum("mfi,mi->mf", pl[..., :3], cen) - pl[..., 3] < -0.1)
+
+
 def test_walker_matches_brute_force_on_random_rays(xs):
     mesh = box_mesh((3, 3, 3), (30.0, 30.0, 30.0), jitter=0.25)
     rng = np.random.default_rng(1)
@@ -78,7 +98,8 @@ def test_walker_matches_brute_force_on_random_rays(xs):
             expected[kk] = c
         assert out == ESCAPES and counts[1] == 0
         assert counts[C_CROSSINGS] == len(ref)  # one crossing per tet left
-        np.testing.assert_allclose(col, expected, atol=1e-9)
+        # the kernel's face planes are float32: within 2⁻²⁴·|c| (< 3·10⁻⁶ mm here) of the vertices
+        np.testing.assert_allclose(col, expected, atol=1e-5)
 
 
 def test_tet_order_does_not_change_the_walk(xs):
@@ -338,7 +359,8 @@ def _barycentric(mesh, k, p):
 
 
 def test_point_location_finds_the_tet_holding_each_point(organ_mesh):
-    """Random points in the bounding box and near boundary faces (1e-4 mm in and out): a located
+    """Random points in the bounding box and near boundary faces (1e-3 mm in and out, ten times
+    the tolerance that closes the float32 planes' slivers, LOCATE_TOL_MM): a located
     tet holds the point (barycentric coordinates ≥ 0), a point reported outside (−1) lies in no
     tet (brute force over every tet, numpy)."""
     mesh, order, g = organ_mesh
@@ -350,7 +372,7 @@ def test_point_location_finds_the_tet_holding_each_point(organ_mesh):
     centre = tri.mean(axis=1)
     normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     normal /= np.linalg.norm(normal, axis=1, keepdims=True)
-    for side in (-1e-4, 1e-4):
+    for side in (-10 * LOCATE_TOL_MM, 10 * LOCATE_TOL_MM):
         pts.append(centre + side * normal)
     pts = np.concatenate(pts)
     v = mesh.points_mm[mesh.tets]  # (M, 4, 3)

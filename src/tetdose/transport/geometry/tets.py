@@ -1,11 +1,12 @@
 """Mesh → kernel arrays for the tetrahedral walker (:class:`~._geometry_tet.TetGeometry`).
 
 Per tet: the four face planes (outward unit normal n_f, offset c_f = n_f·a for a vertex a of the
-face), the packed neighbour link ``4·k' + f'`` (k' the tet across face f, f' the same face's
-index in k'; −1 on the boundary, :data:`SUPPORTING` on a boundary face no photon can come back
-through), the linear density ρ(x) = ∇ρ·x + c solved from the four vertex densities, and the
-material. Boundary faces (corner, two edges, outward normal) go into a uniform grid (CSR) for
-the entry ray cast.
+face; float32, one cache line per tet: :class:`~._tet.TetGeometry`, :func:`float32_planes`), the
+packed neighbour link ``4·k' + f'`` (k' the tet across face f, f' the same face's index in k';
+−1 on the boundary, :data:`SUPPORTING` on a boundary face no photon can come back through), the
+linear density ρ(x) = ∇ρ·x + c solved from the four vertex densities, and the material.
+Boundary faces (corner, two edges, outward normal) go into a uniform grid (CSR) for the entry
+ray cast.
 
 Tet order: :func:`morton_order` sorts tets along a Z-order (Morton) curve of their centroids
 (21 bits per axis), so tets near in space are near in memory. Meshers emit tets in an order
@@ -31,7 +32,36 @@ _MORTON_BITS = 21
 #: tets' boxes and face planes when listing them per cell [mm] (≥ the location tolerance).
 LOC_CELLS_PER_TET = 1.0
 LOC_MAX_CELLS_PER_AXIS = 512
-LOC_PAD_MM = 1e-6
+LOC_PAD_MM = 2e-4
+#: Bytes of a cache line: the planes array starts on one, so a tet's planes fill one line.
+CACHE_LINE = 64
+
+
+def aligned_copy(a: np.ndarray, align: int = CACHE_LINE) -> np.ndarray:
+    """A C-contiguous copy of ``a`` whose data start on an ``align``-byte boundary."""
+    buf = np.empty(a.nbytes + align, dtype=np.uint8)
+    start = -buf.ctypes.data % align
+    out = buf[start:start + a.nbytes].view(a.dtype).reshape(a.shape)
+    out[...] = a
+    return out
+
+
+def float32_planes(normals: FloatArray, on_face: FloatArray, link: IntArray) -> np.ndarray:
+    """(M, 4, 4) float32 planes from unit ``normals`` (M, 4, 3) and a point ``on_face`` (M, 4, 3)
+    of each face [mm]: the normal is rounded first and the offset c = n·a taken from the rounded
+    normal in float64, then rounded (so the plane misses the face's vertices by c's rounding,
+    2⁻²⁴·|c|, not by the normal's times |a|); a face shared by two tets (``link`` ≥ 0, packed
+    4·k' + f') gets one plane, stored negated in the tet of higher index, so both tets put every
+    point on the same side of it."""
+    n32 = normals.astype(np.float32)
+    planes = np.empty(normals.shape[:2] + (4,), dtype=np.float32)
+    planes[..., :3] = n32
+    planes[..., 3] = np.einsum("mfi,mfi->mf", n32.astype(np.float64), on_face)
+    k, f = np.nonzero(link >= 0)
+    k2, f2 = link[k, f] >> 2, link[k, f] & 3
+    lower = k < k2
+    planes[k2[lower], f2[lower]] = -planes[k[lower], f[lower]]
+    return planes
 
 
 def morton_order(points_mm: FloatArray) -> IntArray:
@@ -165,11 +195,12 @@ def mesh_geometry(mesh: TetMesh, density_g_cm3: FloatArray, material: IntArray,
     bnd_tri = np.stack([corner, pts[tri[:, 1]] - corner, pts[tri[:, 2]] - corner,
                         planes[bk, bf, :3]], axis=1)
     c_ = np.ascontiguousarray
-    material = c_(np.asarray(material)[order], dtype=np.intp)
+    material = c_(np.asarray(material)[order], dtype=np.int32)
     # linear density: its largest value in a tet is at a vertex
     rho_max = material_density_max(material, rho[tets].max(axis=1),
                                    int(material.max()) + 1 if len(material) else 0)
-    return TetGeometry(c_(planes), c_(link, dtype=np.intp), c_(density), material,
+    return TetGeometry(aligned_copy(float32_planes(normals, a, link)), c_(link, dtype=np.int32),
+                       c_(density), material,
                        c_(bk, dtype=np.intp), c_(bnd_tri), *_boundary_grid(pts, tri),
                        *location_grid(pts, tets, planes), rho_max)
 
@@ -177,8 +208,8 @@ def mesh_geometry(mesh: TetMesh, density_g_cm3: FloatArray, material: IntArray,
 def empty_mesh_geometry() -> TetGeometry:
     """The mesh part of a voxel-only world: no tets, no boundary faces, one empty grid cell."""
     z3 = np.zeros(3)
-    return TetGeometry(np.zeros((0, 4, 4)), np.zeros((0, 4), np.intp), np.zeros((0, 4)),
-                       np.zeros(0, np.intp), np.zeros(0, np.intp), np.zeros((0, 4, 3)), z3,
+    return TetGeometry(np.zeros((0, 4, 4), np.float32), np.zeros((0, 4), np.int32),
+                       np.zeros((0, 4)), np.zeros(0, np.int32), np.zeros(0, np.intp), np.zeros((0, 4, 3)), z3,
                        np.ones(3), np.ones(3, np.intp), np.zeros(2, np.intp),
                        np.zeros(0, np.intp), z3.copy(), np.ones(3), np.ones(3, np.intp),
                        np.zeros(2, np.intp), np.zeros(0, np.int32), np.zeros(0))
