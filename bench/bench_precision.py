@@ -8,7 +8,7 @@ thread. Run::
 
     NUMBA_CACHE_DIR=.numba-cache .venv/bin/python bench/bench_precision.py \\
         [--histories 1e6] [--ompmc-histories 1e5] [--tet-histories 1e6] [--no-ompmc] [--no-mesh] \\
-        [--setting key=value ...]
+        [--setting key=value ...] [--repeats K]
 
 ``--setting`` pairs go to :class:`~tetdose.transport.run.settings.TransportSettings` as given
 (Python literals: ``--setting photon_splitting=20 --setting quasi_random=True``), for tetdose's
@@ -131,11 +131,16 @@ def figures(name: str, rel: np.ndarray, cpu_s: float, n: int, fixed_s: float = 0
     sigma = float(np.median(rel))
     transport = max(cpu_s - fixed_s, 1e-9)
     eff = 1.0 / (sigma**2 * transport)
-    t1 = fixed_s + transport * (sigma / 0.01) ** 2
+    t1 = time_to_1pc(sigma, cpu_s, fixed_s)
     print(f"{name:<34} N {n:9.3g}  median σ {100 * sigma:6.2f} %  CPU {cpu_s:8.1f} s (fixed "
           f"{fixed_s:4.1f} s)  ε {eff:9.4g} /s  T(1 %) {t1:9.0f} s = {t1 / 60:6.1f} min",
           flush=True)
     return {"sigma": sigma, "cpu_s": cpu_s, "eff": eff, "t1": t1}
+
+
+def time_to_1pc(sigma: float, cpu_s: float, fixed_s: float) -> float:
+    """T(1 %) = fixed + (T − fixed)·(σ/1 %)² [s] (:func:`figures`)."""
+    return fixed_s + max(cpu_s - fixed_s, 1e-9) * (sigma / 0.01) ** 2
 
 
 def timed(fn, *args, **kw):  # noqa: ANN001, ANN002, ANN003, ANN201
@@ -157,6 +162,9 @@ def main() -> None:
     ap.add_argument("--no-ompmc", action="store_true")
     ap.add_argument("--no-mesh", action="store_true")
     ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--repeats", type=int, default=1,
+                    help="with the mesh: time K pairs of voxel and tet runs, alternating, and "
+                         "print the median tets / voxels ratio (this VM's speed drifts)")
     ap.add_argument("--setting", action="append", default=[], metavar="KEY=VALUE",
                     help="a TransportSettings field for tetdose's runs (repeatable)")
     ap.add_argument("--compare", action="append", default=[], metavar="KEY=VALUE",
@@ -194,7 +202,18 @@ def main() -> None:
     if not args.no_ompmc:
         run_ompmc(rho, pl, int(args.ompmc_histories), mask, f_vox, args.threads)
     if not args.no_mesh:
-        run_mesh(rho, pl, int(args.tet_histories or n), mask, f_vox, extra)
+        n_t = int(args.tet_histories or n)
+        mesh, f_tet, fixed_t = run_mesh(rho, pl, n_t, mask, f_vox, extra)
+        pairs = [(cpu, f_tet["cpu_s"])]
+        for _ in range(args.repeats - 1):
+            pairs.append((timed(simulate, rho, pl, settings(n, extra), progress=False)[1],
+                          timed(simulate, mesh, pl, settings(n_t, extra), progress=False)[1]))
+        if len(pairs) > 1:
+            ratios = [time_to_1pc(f_tet["sigma"], t, fixed_t) / time_to_1pc(f_vox["sigma"], v, fixed)
+                      for v, t in pairs]
+            print(f"  tets / voxels time to 1 %, {len(pairs)} alternating pairs: median "
+                  f"{np.median(ratios):.2f} (" + ", ".join(f"{r:.2f}" for r in ratios) + "); CPU "
+                  "[s] voxels / tets: " + ", ".join(f"{v:.1f} / {t:.1f}" for v, t in pairs))
 
 
 def run_ompmc(rho: Image, pl: Plan, n: int, mask: np.ndarray, f_vox: dict[str, float],
@@ -215,7 +234,8 @@ def run_ompmc(rho: Image, pl: Plan, n: int, mask: np.ndarray, f_vox: dict[str, f
 
 
 def run_mesh(rho: Image, pl: Plan, n: int, mask: np.ndarray, f_vox: dict[str, float],
-             extra: dict[str, object]) -> None:
+             extra: dict[str, object]) -> tuple[TetMesh, dict[str, float], float]:
+    """The tet cube's run and its vertex dose: (mesh, figures, fixed CPU [s])."""
     from tetdose.dose.vertex import vertex_dose
 
     mesh = cube_mesh()
@@ -236,6 +256,7 @@ def run_mesh(rho: Image, pl: Plan, n: int, mask: np.ndarray, f_vox: dict[str, fl
                  fixed + cpu_v)
     print(f"  vertex dose: projection {cpu_v:.2f} s; variance gain over per-tet σ² "
           f"{(f['sigma'] / fv['sigma']) ** 2:.2f}×")
+    return mesh, f, fixed
 
 
 if __name__ == "__main__":
