@@ -133,12 +133,13 @@ def mesh_sites(g, xs, e, k, x, y, z, u, v, w, sites, i, n, acc, counts):
     mu = 0.0
     entry = -1
     crossings = 0
+    no_tally = g.density[:0, 0]  # the walk writes no tally: nothing of it to prefetch
     while True:
         m = g.material[k]
         if m != m_prev:
             mu, _ = transport_coefficients(xs, m, e)
             m_prev = m
-        prefetch_neighbours(g, k, entry, True, g.density[:0, 0])
+        prefetch_neighbours(g, k, entry, True, no_tally)
         f, t = exit_face(g, k, x, y, z, u, v, w, entry)
         if f < 0 or t <= 0.0 or g.link[k, f] < 0:
             counts[C_CROSSINGS] += crossings
