@@ -209,7 +209,10 @@ def empty_mesh_geometry() -> TetGeometry:
     """The mesh part of a voxel-only world: no tets, no boundary faces, one empty grid cell."""
     z3 = np.zeros(3)
     return TetGeometry(np.zeros((0, 4, 4), np.float32), np.zeros((0, 4), np.int32),
-                       np.zeros((0, 4)), np.zeros(0, np.int32), np.zeros(0, np.intp), np.zeros((0, 4, 3)), z3,
-                       np.ones(3), np.ones(3, np.intp), np.zeros(2, np.intp),
-                       np.zeros(0, np.intp), z3.copy(), np.ones(3), np.ones(3, np.intp),
-                       np.zeros(2, np.intp), np.zeros(0, np.int32), np.zeros(0))
+                       np.zeros((0, 4)), np.zeros(0, np.int32),  # planes, link, density, material
+                       np.zeros(0, np.intp), np.zeros((0, 4, 3)),  # boundary faces
+                       z3, np.ones(3), np.ones(3, np.intp), np.zeros(2, np.intp),
+                       np.zeros(0, np.intp),  # entry grid
+                       z3.copy(), np.ones(3), np.ones(3, np.intp), np.zeros(2, np.intp),
+                       np.zeros(0, np.int32),  # point-location grid
+                       np.zeros(0))
