@@ -41,8 +41,8 @@ def _sites_both_ways(wg, xs, e, p, d, n, seed):
     state_end, found = ray_sites(wg, xs, e, cell, x, y, z, d[0], d[1], d[2], state, n, one_walk,
                                  tally, ledger, counts)
     tau_prev, k = 0.0, 0
+    state, xi = next_uniform(state)  # one ξ for all the copies: systematic sampling
     for i in range(n):
-        state, xi = next_uniform(state)
         tau = -math.log1p(-(i + xi) / n)
         if k < i:  # an earlier copy left the world: so do the rest
             continue

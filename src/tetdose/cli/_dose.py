@@ -140,7 +140,7 @@ def add_run_args(parser: argparse.ArgumentParser, per: str = "") -> None:
                         "roulette for the split photons' electrons (EGSnrc, default); follow = "
                         "follow them all with weight 1/N, roulette for the secondary photons "
                         "(XVMC); repeat = XVMC's splitting along the ray: every photon of "
-                        "weight 1 split into N copies at stratified depths, one shared "
+                        "weight 1 split into N copies at evenly spaced depths, one shared "
                         "interaction and one electron track replayed from each copy's site")
     parser.add_argument("--secondary-photon-splitting", type=int_at_least(1), metavar="N2",
                         help="with --splitting-scheme repeat: copies of every photon of weight 1 "

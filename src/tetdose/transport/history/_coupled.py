@@ -40,7 +40,7 @@ multiplies the electrons by n_split (gain ≈ 1: measured, bench/bench_vr.py).
 
 **XVMC's splitting along the ray with history repetition** (``"repeat"``): every photon of
 weight 1 — source photon, survivor of the roulette, photon an unweighted electron creates — is
-split into n_split copies whose interaction sites are stratified along its ray and found in one
+split into n_split copies whose interaction sites are evenly spaced along its ray and found in one
 walk; the copies share their interaction, and their electrons one track, replayed from each site
 (:mod:`tetdose.transport.history._split`, :mod:`tetdose.transport.history._repeat`).
 

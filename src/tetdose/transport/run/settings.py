@@ -12,7 +12,7 @@ photon as n copies of weight 1/n and plays Russian roulette with the electrons t
 (unbiased; :mod:`tetdose.transport.history._coupled`; dose mode only);
 ``splitting_scheme="follow"`` follows those electrons with weight 1/n instead and plays the
 roulette with the secondary photons (XVMC's scheme); ``"repeat"`` splits every photon of weight
-1 (not only the source photons) into n copies whose interaction sites are stratified along its
+1 (not only the source photons) into n copies whose interaction sites are evenly spaced along its
 ray, share one interaction and one electron track, sampled once and replayed from each copy's
 site, scaled to the local medium (XVMC's splitting with electron history repetition;
 :mod:`tetdose.transport.history._split`, :mod:`tetdose.transport.history._repeat`);
