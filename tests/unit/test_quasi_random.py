@@ -79,9 +79,15 @@ def test_primary_kerma_is_unbiased_and_much_less_noisy():
 
 def test_absorbed_dose_agrees_with_the_pseudo_random_run():
     """Dose mode in water: the energy absorbed in the field's voxels and the whole slab agree
-    within 3σ; every other option unchanged."""
+    within 3σ; every other option unchanged. The field is the voxels whose centres lie inside
+    the beam's 20 × 20 mm², not those above half of one run's maximum: the field-edge voxels a
+    run's noise lifts over that threshold bias its sum upwards (with that selection the
+    pseudo-random run came out 2.1–3.7σ above the quasi-random one in 8 seeds out of 8)."""
+    density, _ = _slab(1.0)
+    c = density.grid.voxel_centers_mm()
+    field = (np.abs(c[:, 0]) < FIELD_MM / 2) & (np.abs(c[:, 1]) < FIELD_MM / 2)
+    assert field.sum() == 16 * 4
     pr, qr = _runs(1.0, 4000, 8)
-    field = pr.dose_gy > 0.5 * pr.dose_gy.max()
     for cells in (field, np.ones_like(field)):
         _assert_same_energy(pr, qr, cells)
     assert qr.extra["quasi_random"] and "quasi_random" not in pr.extra

@@ -94,7 +94,7 @@ from tetdose.transport.physics._electron import range_of
 
 @kernel
 def photon_track(wg, xs, ln_mu_hat, e, cell, x, y, z, u, v, w, state, p_cut, e_cut, wt, scheme,
-                 n_split, sites, tally, ledger, counts, stack, n_stack):
+                 n_split, qs, sites, tally, ledger, counts, stack, n_stack):
     """Follow one photon of weight ``wt`` to its absorption, escape or cut-off; secondaries go on
     the stack. With ``scheme`` FOLLOW or REPEAT (XVMC's splitting) a photon of weight < 1 plays
     Russian roulette once it has scattered (survival wt, then weight 1); with REPEAT a photon of
@@ -109,7 +109,8 @@ def photon_track(wg, xs, ln_mu_hat, e, cell, x, y, z, u, v, w, state, p_cut, e_c
             tally[cell] += e * wt
             return state, n_stack
         if scheme == REPEAT and wt == 1.0 and n_split > 1:
-            return split_photon(wg, xs, e, cell, x, y, z, u, v, w, state, n_split, e_cut, sites,
+            return split_photon(wg, xs, e, cell, x, y, z, u, v, w, state, n_split, qs, e_cut,
+                                sites,
                                 tally, ledger, counts, stack, n_stack)
         state, xi = next_uniform(state)
         if delta:
@@ -169,8 +170,8 @@ def wall_column(wg, cell, x, y, z):
 
 @kernel
 def coupled_history(wg, xs, ln_mu_hat, et, sig_hat, sp, e, cell, x, y, z, u, v, w, state, p_cut,
-                    f_loss, wt, scheme, n_split, n_split2, rr_mev, tally, ledger, counts, stack,
-                    bcell, bcol, sites, trk, key, dw):
+                    f_loss, wt, scheme, n_split, n_split2, rr_mev, qs, tally, ledger, counts,
+                    stack, bcell, bcol, sites, trk, key, dw):
     """Follow one source particle (species ``sp``, energy [MeV], already in global ``cell``,
     statistical weight ``wt``: 1, or 1/n_split for a copy of a split photon, whose electrons
     ``scheme`` rouletted or followed with weight wt; with REPEAT every photon of weight 1 is
@@ -187,9 +188,9 @@ def coupled_history(wg, xs, ln_mu_hat, et, sig_hat, sp, e, cell, x, y, z, u, v, 
     while True:
         if sp == PHOTON:
             state, n_stack = photon_track(wg, xs, ln_mu_hat, e, cell, x, y, z, u, v, w, state,
-                                          p_cut, et.cutoff_mev, wt, scheme, n_now, sites,
+                                          p_cut, et.cutoff_mev, wt, scheme, n_now, qs, sites,
                                           tally, ledger, counts, stack, n_stack)
-            n_now = n_split2
+            n_now, qs = n_split2, (-1.0, -1.0, -1.0)
         elif ((sp == ELECTRON or sp == REPLAY) and e <= rr_mev
               and range_of(et, cell_material(wg, cell), ELECTRON, e) * MM_PER_CM
               < wall_column(wg, cell, x, y, z)):

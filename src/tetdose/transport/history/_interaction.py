@@ -41,6 +41,7 @@ from tetdose.transport.history._electron import (
 from tetdose.transport.physics._photon import (
     branching_fractions,
     isotropic_direction,
+    klein_nishina_inverse,
     rotate_direction,
     sample_klein_nishina,
 )
@@ -91,16 +92,23 @@ def release(state, sp, t, x, y, z, u, v, w, cell, e_cut, wt, scheme, tally, ledg
 
 
 @kernel
-def interaction_products(xs, m, e, u, v, w, state):
+def interaction_products(xs, m, e, u, v, w, state, q_kn=-1.0, q_phi=-1.0):
     """Sample one interaction of a photon of energy ``e`` [MeV] in material m (module docstring):
     (state, kind, e', u', v', w' of the photon, T₁, direction of the first charged particle,
     T₂, direction of the second). ``kind``: INCOHERENT (the photon goes on; an electron),
-    PAIR (an electron, then a positron) or PHOTOELECTRIC (an electron)."""
+    PAIR (an electron, then a positron) or PHOTOELECTRIC (an electron). ``q_kn``, ``q_phi`` ≥ 0:
+    the Compton scatter (by inversion, :func:`klein_nishina_inverse`) and its azimuth from these
+    uniforms (a quasi-random point's) instead of the stream."""
     p_incoherent, p_pair = branching_fractions(xs, m, e)
     state, r = next_uniform(state)
     if r < p_incoherent:
-        state, e_out, cos_theta = sample_klein_nishina(e, state)
+        if q_kn >= 0.0:
+            e_out, cos_theta = klein_nishina_inverse(e, q_kn)
+        else:
+            state, e_out, cos_theta = sample_klein_nishina(e, state)
         state, r_phi = next_uniform(state)
+        if q_phi >= 0.0:
+            r_phi = q_phi
         u2, v2, w2 = rotate_direction(u, v, w, cos_theta, _TWO_PI * r_phi)
         eu, ev, ew = compton_electron_direction(e, e_out, u, v, w, u2, v2, w2)
         return (state, INCOHERENT, e_out, u2, v2, w2, e - e_out, eu, ev, ew,

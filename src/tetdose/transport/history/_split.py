@@ -6,6 +6,8 @@ ray. Copy i interacts at the optical depth
 
     τ_i = −ln(1 − (i + ξ)/n),   one ξ uniform in [0, 1) for all copies, i = 0 … n − 1,
 
+(with quasi-random primaries the source photon's ξ is a coordinate of the history's Sobol point)
+
 a systematic sample of the analog free path: the cumulative probabilities 1 − e^(−τ_i) lie 1/n
 apart, one in each stratum [i/n, (i+1)/n), each on its own uniform in its stratum, so
 Σ_i w·g(τ_i) is an unbiased estimate of E[g(τ)] for any tally g (the copies are dependent, the
@@ -166,9 +168,10 @@ def mesh_sites(g, xs, e, k, x, y, z, u, v, w, sites, i, n, acc, counts):
 
 
 @kernel
-def ray_sites(wg, xs, e, cell, x, y, z, u, v, w, state, n, sites, tally, ledger, counts):
+def ray_sites(wg, xs, e, cell, x, y, z, u, v, w, state, n, q_shift, sites, tally, ledger, counts):
     """Write the interaction sites of the n copies (module docstring) to ``sites``; book the
-    copies that leave the world: (state, sites found).
+    copies that leave the world: (state, sites found). ``q_shift``: the copies' offset ξ from the
+    history's quasi-random point, or −1 (drawn from the stream, which advances either way).
 
     All n optical depths are drawn first (the walk draws nothing: the stream is that of a walk
     per copy). Voxels and tets are walked once for all the copies they hold
@@ -178,6 +181,8 @@ def ray_sites(wg, xs, e, cell, x, y, z, u, v, w, state, n, sites, tally, ledger,
     """
     wt = 1.0 / n
     state, xi = next_uniform(state)
+    if q_shift >= 0.0:
+        xi = q_shift
     for i in range(n):
         sites[i, 0] = -math.log1p(-(i + xi) * wt)
     m_tets = wg.tet.planes.shape[0]
@@ -223,15 +228,17 @@ def ray_sites(wg, xs, e, cell, x, y, z, u, v, w, state, n, sites, tally, ledger,
 
 
 @kernel
-def split_photon(wg, xs, e, cell, x, y, z, u, v, w, state, n, e_cut, sites, tally,
+def split_photon(wg, xs, e, cell, x, y, z, u, v, w, state, n, qs, e_cut, sites, tally,
                  ledger, counts, stack, n_stack):
     """Split a photon of weight 1 into ``n`` copies along its ray, interact each at its site
     with the copies' shared stream, keep one scattered photon (module docstring): (state,
-    n_stack)."""
+    n_stack). ``qs``: (offset ξ, Compton, azimuth) uniforms of the history's quasi-random point
+    for the source photon's split (:mod:`tetdose.transport.sources._sample`), −1 where the
+    streams draw them."""
     wt = 1.0 / n
     state, xk = next_uniform(state)
     kin = seed_for(int(xk * _TWO_53), 1, 0)
-    state, n_in = ray_sites(wg, xs, e, cell, x, y, z, u, v, w, state, n, sites, tally,
+    state, n_in = ray_sites(wg, xs, e, cell, x, y, z, u, v, w, state, n, qs[0], sites, tally,
                             ledger, counts)
     state, xj = next_uniform(state)
     keep = min(int(xj * n), n - 1)
@@ -246,7 +253,7 @@ def split_photon(wg, xs, e, cell, x, y, z, u, v, w, state, n, e_cut, sites, tall
         m = cell_material(wg, c)
         if m != m_last:  # the shared stream gives the same products in the same material
             _, kind, e2, u2, v2, w2, t1, eu, ev, ew, t2, pu, pv, pw = interaction_products(
-                xs, m, e, u, v, w, kin)
+                xs, m, e, u, v, w, kin, qs[1], qs[2])
             m_last = m
         state, n_stack = release_products(state, kind, t1, eu, ev, ew, t2, pu, pv, pw, sx, sy,
                                           sz, c, e_cut, wt, REPEAT, tally, ledger, counts, stack,

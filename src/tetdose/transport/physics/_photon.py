@@ -159,6 +159,51 @@ def sample_klein_nishina(energy_mev, state):
 
 
 @kernel
+def _kn_column(x, eps0, k):
+    """G(x) − G(ε₀) of :func:`klein_nishina_inverse`, written in differences (no cancellation
+    of the 1/k² terms at small k)."""
+    d = x - eps0
+    lg = math.log(x / eps0)
+    return (lg + 0.5 * d * (x + eps0) - 2.0 * (lg - d) / k
+            + ((1.0 / eps0 - 1.0 / x) - 2.0 * lg + d) / (k * k))
+
+
+@kernel
+def klein_nishina_inverse(energy_mev, xi):
+    """Compton scatter on a free electron by inversion of the Klein–Nishina CDF: (E' [MeV],
+    cos θ) with ε = E'/E the root of G(ε) − G(ε₀) = ξ·(G(1) − G(ε₀)),
+
+        G(x) = ln x + x²/2 − (2/k)(ln x − x) + (1/k²)(−1/x − 2 ln x + x),
+
+    the integral of dσ/dε ∝ 1/ε + ε − sin²θ (sin²θ = 2t − t², t = (1/ε − 1)/k = 1 − cos θ), the
+    distribution :func:`sample_klein_nishina` draws by rejection; monotone in ξ, so stratified
+    or quasi-random ξ stratify the scattered energy. Safeguarded Newton on [ε₀, 1]."""
+    k = energy_mev / ELECTRON_MASS_MEV
+    eps0 = 1.0 / (1.0 + 2.0 * k)
+    target = xi * _kn_column(1.0, eps0, k)
+    lo, hi = eps0, 1.0
+    x = eps0 + xi * (1.0 - eps0)
+    for _ in range(60):
+        g = _kn_column(x, eps0, k) - target
+        if g > 0.0:
+            hi = x
+        else:
+            lo = x
+        t = (1.0 / x - 1.0) / k
+        dg = 1.0 / x + x - t * (2.0 - t)
+        step = g / dg
+        x_new = x - step
+        if not lo < x_new < hi:
+            x_new = 0.5 * (lo + hi)
+        if abs(x_new - x) <= 1e-14 * x:
+            x = x_new
+            break
+        x = x_new
+    t = (1.0 / x - 1.0) / k
+    return x * energy_mev, 1.0 - t
+
+
+@kernel
 def rotate_direction(u, v, w, cos_theta, phi):
     """Unit vector at polar angle θ (cos θ given) and azimuth φ [rad] about (u, v, w)
     (:func:`rotate_cs`)."""

@@ -30,7 +30,7 @@ from tetdose.transport.history._electron import (
 from tetdose.transport.history._photon import C_MISSED, C_RELOCATIONS, L_ESCAPED, L_SOURCE
 from tetdose.transport.history._repeat import KEY_SIZE, TRACK_COLUMNS, TRACK_ROWS
 from tetdose.transport.history._split import SITE_COLUMNS
-from tetdose.transport.sources._sample import sample_source
+from tetdose.transport.sources._sample import Q_AZIMUTH, Q_COMPTON, Q_SPLIT, sample_source
 from tetdose.transport.sources._volume import sample_volume
 
 #: Stack depth for mixed particles (a shower waits depth-first: photons, δ-rays, brems,
@@ -115,10 +115,12 @@ def run_world_dose(tet, vox, tri_lo, tri_n, tri_start, tri_items, xs, ln_mu_hat,
             copies = n_split if sp == PHOTON and sch < 2 else 1  # "repeat" splits in the history
             wt = 1.0 / copies
             key[0] = -1.0  # no track of another history is replayed
+            qs = ((q[Q_SPLIT], q[Q_COMPTON], q[Q_AZIMUTH]) if q.shape[0] > Q_AZIMUTH
+                  else (-1.0, -1.0, -1.0))
             for _ in range(copies):
                 state = coupled_history(wg, xs, ln_mu_hat, et, sig_hat, sp, e, cell, x, y, z,
                                         u, v, w, state, photon_cutoff, f_loss, wt, sch, n_split,
-                                        n_split2, rr_mev, tally, led, cnt, stack, bcell, bcol,
-                                        sites, trk, key, dw)
+                                        n_split2, rr_mev, qs, tally, led, cnt, stack, bcell,
+                                        bcol, sites, trk, key, dw)
         ledger[b - b_start, :] = led
         counts[b - b_start, :] = cnt

@@ -29,7 +29,9 @@ walks them cell by cell as kerma mode does (``"walk"``); both give the same dose
 statistics (different random numbers). Kerma mode always walks (its track-length estimator
 needs every segment). ``quasi_random``: the source particles' position (or direction),
 spectrum line and beam come from randomized Sobol points, independently scrambled per batch
-(:mod:`tetdose.transport.sources.quasi`); off: bit for bit the pseudo-random sources.
+(:mod:`tetdose.transport.sources.quasi`), and with ``"repeat"`` the source photon's split its
+copies' offset and its shared Compton scatter and azimuth; off: bit for bit the pseudo-random
+sources.
 """
 
 from __future__ import annotations

@@ -25,8 +25,14 @@ uniforms listed below are then taken from it instead of the history's stream (th
 advances by the same draws, so everything after the source is drawn as without it). Coordinates:
 :data:`Q_A`, :data:`Q_B` the field position (parallel), cos θ and φ (point), the aperture point
 (linac); :data:`Q_ENERGY` the spectrum line; :data:`Q_C` the aperture rectangle (linac);
-:data:`Q_BEAM` the beam. Dynamic segments (rejection sampling) stay pseudo-random. ``q`` of
-length 0: every uniform from the stream (bit for bit the sampling without the option).
+:data:`Q_BEAM` the beam. Dynamic segments (rejection sampling) stay pseudo-random. Three more
+coordinates are not the source's: with splitting along the ray, the source photon's split takes
+its copies' common offset ξ (:data:`Q_SPLIT`, :mod:`tetdose.transport.history._split`) and its
+shared interaction's Compton scatter (:data:`Q_COMPTON`, by inversion of the Klein–Nishina CDF,
+:func:`tetdose.transport.physics._photon.klein_nishina_inverse`) and azimuth
+(:data:`Q_AZIMUTH`) from the point, so the electrons the primaries set in motion have their
+energies and directions spread evenly too. ``q`` of length 0: every uniform from the stream (bit
+for bit the sampling without the option).
 """
 
 import math
@@ -78,9 +84,9 @@ class SourceArrays(NamedTuple):
 
 
 #: Coordinates of a history's quasi-random point (module docstring); Sobol's first dimensions are
-#: the best distributed, so the field position comes first.
-Q_A, Q_B, Q_ENERGY, Q_C, Q_BEAM = 0, 1, 2, 3, 4
-N_QMC_DIMS = 5
+#: the best distributed, so the field position comes first, the source photon's split last.
+Q_A, Q_B, Q_ENERGY, Q_C, Q_BEAM, Q_SPLIT, Q_COMPTON, Q_AZIMUTH = 0, 1, 2, 3, 4, 5, 6, 7
+N_QMC_DIMS = 8
 
 
 @kernel
