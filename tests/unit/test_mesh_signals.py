@@ -66,7 +66,7 @@ def test_mesh_stops_cleanly_on_a_signal(labels, tmp_path, sig, code):
                 break
         assert any("background mesh" in ln for ln in lines), "".join(lines)
         assert len(_tagged(tag)) >= 2, "the mesher child is not running"
-        time.sleep(0.5)
+        time.sleep(0.2)  # a label's cut takes ~0.4 s on a fast host: stop inside the first
         got, rest, seconds = interrupt(proc, sig, timeout_s=30)
         assert got == code and seconds < 15.0
     finally:
@@ -74,7 +74,10 @@ def test_mesh_stops_cleanly_on_a_signal(labels, tmp_path, sig, code):
             proc.kill()
             proc.wait()
     err = "".join(lines) + rest
-    assert rest.strip().splitlines() == ["tetdose mesh: interrupted; no partial output was kept"]
+    # a fast host may finish a label's cut (its progress line) before the signal arrives
+    said = rest.strip().splitlines()
+    assert said[-1:] == ["tetdose mesh: interrupted; no partial output was kept"], said
+    assert all(ln.startswith("tetdose mesh: cut label") for ln in said[:-1]), said
     assert "Traceback" not in err and "MMG" not in err
     assert not (tmp_path / "out").exists(), "an output (or its folder) was written"
     deadline = time.monotonic() + 5
