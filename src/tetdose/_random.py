@@ -42,3 +42,11 @@ def next_uniform(state):
     """Advance ``state``; return (new_state, u) with u uniform in [0, 1) (53 random bits)."""
     state = np.uint64(state) + _GAMMA
     return state, float(_mix(state) >> _S11) * _TWO_M53
+
+
+@njit(cache=True, inline="always")
+def next_uniform_or(state, fixed):
+    """(state, ξ): the stream's next uniform, or ``fixed`` in its place when ``fixed`` ≥ 0 (a
+    quasi-random coordinate); the stream advances either way."""
+    state, xi = next_uniform(state)
+    return state, fixed if fixed >= 0.0 else xi

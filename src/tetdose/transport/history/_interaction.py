@@ -25,7 +25,7 @@ import math
 from numba import njit
 
 from tetdose._jit import kernel
-from tetdose._random import next_uniform
+from tetdose._random import next_uniform, next_uniform_or
 from tetdose.transport.history._electron import (
     ELECTRON,
     ELECTRON_MASS_MEV,
@@ -106,9 +106,7 @@ def interaction_products(xs, m, e, u, v, w, state, q_kn=-1.0, q_phi=-1.0):
             e_out, cos_theta = klein_nishina_inverse(e, q_kn)
         else:
             state, e_out, cos_theta = sample_klein_nishina(e, state)
-        state, r_phi = next_uniform(state)
-        if q_phi >= 0.0:
-            r_phi = q_phi
+        state, r_phi = next_uniform_or(state, q_phi)
         u2, v2, w2 = rotate_direction(u, v, w, cos_theta, _TWO_PI * r_phi)
         eu, ev, ew = compton_electron_direction(e, e_out, u, v, w, u2, v2, w2)
         return (state, INCOHERENT, e_out, u2, v2, w2, e - e_out, eu, ev, ew,

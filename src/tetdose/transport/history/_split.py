@@ -43,7 +43,7 @@ from numba import njit
 
 from tetdose._constants import MM_PER_CM
 from tetdose._jit import kernel
-from tetdose._random import next_uniform, seed_for
+from tetdose._random import next_uniform, next_uniform_or, seed_for
 from tetdose.transport.geometry._tet import exit_face, next_tet, prefetch_neighbours
 from tetdose.transport.geometry._voxel import dda_init, dda_step
 from tetdose.transport.geometry._walk import (
@@ -180,9 +180,7 @@ def ray_sites(wg, xs, e, cell, x, y, z, u, v, w, state, n, q_shift, sites, tally
     on, through vacuum and across worlds, and the single walk resumes from its site.
     """
     wt = 1.0 / n
-    state, xi = next_uniform(state)
-    if q_shift >= 0.0:
-        xi = q_shift
+    state, xi = next_uniform_or(state, q_shift)
     for i in range(n):
         sites[i, 0] = -math.log1p(-(i + xi) * wt)
     m_tets = wg.tet.planes.shape[0]

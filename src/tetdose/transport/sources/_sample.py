@@ -39,7 +39,7 @@ import math
 from typing import NamedTuple
 
 from tetdose._jit import kernel
-from tetdose._random import next_uniform
+from tetdose._random import next_uniform, next_uniform_or
 from tetdose._typing import FloatArray, IntArray
 
 PENCIL, PARALLEL, POINT, LINAC, LINAC_DYNAMIC = 0, 1, 2, 3, 4
@@ -92,10 +92,7 @@ N_QMC_DIMS = 8
 @kernel
 def _uniform(state, q, k):
     """(state, ξ): the stream's next uniform, replaced by coordinate k of ``q`` when it has one."""
-    state, xi = next_uniform(state)
-    if k < q.shape[0]:
-        xi = q[k]
-    return state, xi
+    return next_uniform_or(state, q[k] if k < q.shape[0] else -1.0)
 
 
 @kernel
