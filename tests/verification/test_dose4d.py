@@ -48,7 +48,9 @@ def test_static_accumulation_equals_single_phase_in_distribution(static_run):
     single = simulate(run.series.mesh(0), PLAN,
                       TransportSettings(n_histories=60_000, n_batches=10, seed=77, physics="kerma"))
     acc = run.accumulated
-    hot = single.dose_gy > 0.2 * single.dose_gy.max()
+    # The tets inside the 20 × 20 mm field (not those above a threshold on one run's dose: the
+    # noise that lifts a tet over it would bias that run's side of the z-scores).
+    hot = np.all(np.abs(run.series.mesh(0).centroids_mm[:, :2] - 20.0) < 8.0, axis=1)
     z = (acc.dose_gy - single.dose_gy)[hot] / np.hypot(acc.dose_std_gy, single.dose_std_gy)[hot]
     assert np.abs(z).max() < 5.0
     assert abs(z.mean()) < 4.0 / np.sqrt(hot.sum()) + 0.3
