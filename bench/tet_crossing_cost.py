@@ -12,10 +12,12 @@ cost of a crossing between consecutive sizes, (ΔCPU)/(Δcrossings). Run::
 
 The photons' walks go cell to cell along their rays, each crossing a dependent load of the next
 tet's records (planes 64 B, density 32 B, link 16 B, material 4 B: 116 B a tet, 25 MB for the
-216 k tets, against 2.6 MB for the voxels' density and material). Where the walk's records stay
-in the caches (8 k and 64 k tets) a further crossing costs about as much as a voxel step; on the
-216 k-tet mesh it costs more than twice that: the scattered photons' rays leave the field and
-walk records that no other history has brought into the cache.
+216 k tets, against 2.6 MB for the voxels' density and material). Measured at stop 41 (best of
+five, bench/README): where the walk's records stay in the caches (8 k → 64 k tets) a further
+crossing cost 44 ns, about a voxel step; from 64 k to 216 k tets, 145 ns: the scattered photons'
+rays leave the field and walk records that no recent history has brought into the cache. The
+VM's L3 is shared with its neighbours, so single runs vary (others gave 49 / 118 and 87 / 86 ns):
+take the best of several rounds.
 """
 
 from __future__ import annotations
