@@ -39,8 +39,7 @@ def _sites_both_ways(wg, xs, e, p, d, n, seed):
         return one_walk[:0], per_copy[:0], True
     state = seed_for(seed, 0, 0)
     state_end, found = ray_sites(wg, xs, e, cell, x, y, z, d[0], d[1], d[2], state, n, -1.0,
-                                 one_walk,
-                                 tally, ledger, counts)
+                                 one_walk, tally, ledger, counts)
     tau_prev, k = 0.0, 0
     state, xi = next_uniform(state)  # one ξ for all the copies: systematic sampling
     for i in range(n):

@@ -110,8 +110,7 @@ def photon_track(wg, xs, ln_mu_hat, e, cell, x, y, z, u, v, w, state, p_cut, e_c
             return state, n_stack
         if scheme == REPEAT and wt == 1.0 and n_split > 1:
             return split_photon(wg, xs, e, cell, x, y, z, u, v, w, state, n_split, qs, e_cut,
-                                sites,
-                                tally, ledger, counts, stack, n_stack)
+                                sites, tally, ledger, counts, stack, n_stack)
         state, xi = next_uniform(state)
         if delta:
             state, out, cell2, x, y, z = flight_delta(wg, xs, ln_mu_hat, e, cell, x, y, z, u, v,
