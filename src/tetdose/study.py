@@ -13,10 +13,11 @@ folder is written atomically: an interrupted run leaves the previous output unto
 
 from __future__ import annotations
 
+import math
 import os
 import shutil
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -52,6 +53,7 @@ from tetdose.core.transfer import grid_dose_to_mesh, mesh_dose_to_grid
 from tetdose.dicom import write_rt_dose
 from tetdose.dose.buildup import build_up_fraction, build_up_mask
 from tetdose.dose.dose4d import run_dose4d, write_dose4d
+from tetdose.errors import MeshError
 from tetdose.mapping import map_density
 from tetdose.mapping.figures import plot_evaluation
 from tetdose.mapping.metrics import evaluate
@@ -101,6 +103,11 @@ class StudyConfig:
     beam_angles_deg: tuple[float, ...] = (0.0, 120.0, 240.0)
     field_mm: float = 60.0
     paper_samples: int = 500  # hit-and-miss points per tet for the paper's baseline
+    #: Target edges [mm] of meshed structures by name (as ``tetdose mesh --size-mm``); a
+    #: structure not named gets its default (:func:`tetdose.meshing.labels.default_sizes_mm`).
+    #: The tumour's trade of resolution for per-tet precision is measured in
+    #: bench/demo_precision.py.
+    mesh_size_mm: tuple[tuple[str, float], ...] = ()
 
     @classmethod
     def quick(cls, **changes: Any) -> StudyConfig:
@@ -145,7 +152,7 @@ class _Run:
         self.ph = make_phantom(self.c.phantom, seed=self.c.seed, size=self.c.size)
         write_phantom(self.ph, self.out / "phantom")
         self.label_of = {name: label for label, name in self.ph.label_names.items()}
-        self.mesh = organ_mesh(self.ph, MOVING)
+        self.mesh = organ_mesh(self.ph, MOVING, dict(self.c.mesh_size_mm))
         write_mesh(self.out / "phantom" / "organ_mesh.vtu", self.mesh)
         m = self.mesh
         self.summary["phantom"] = {"meshed": list(MOVING), "tets": m.n_tets,
@@ -477,15 +484,25 @@ def tet_precision(d4: Any, tets: np.ndarray, floor_gy: float, voxel_mg: float) -
                 "phases": phases}}
 
 
-def organ_mesh(ph: Phantom, names: tuple[str, ...]) -> TetMesh:
+def organ_mesh(ph: Phantom, names: tuple[str, ...],
+               size_mm: Mapping[str, float] | None = None) -> TetMesh:
     """One conforming, organ-shaped mesh (MMG level sets, :mod:`tetdose.meshing`) of the
     phantom's labels ``names``; vessels are folded into the lung that holds them (thinner than
-    two voxels in places), so the regions are lung and tumour."""
+    two voxels in places), so the regions are lung and tumour. ``size_mm``: target edge [mm] by
+    region name (others: their default)."""
     label_of = {name: label for label, name in ph.label_names.items()}
     regions = {label_of[n]: (label_of[n],) for n in names if n in label_of and n != "vessels"}
     if "lung" in label_of and "vessels" in label_of and "vessels" in names:
         regions[label_of["lung"]] = (label_of["lung"], label_of["vessels"])
-    return phantoms_organ_mesh(ph, regions)
+    sizes = dict(size_mm or {})
+    meshed = sorted(ph.label_names[r] for r in regions)
+    if unknown := sorted(set(sizes) - set(meshed)):
+        raise MeshError(f"no meshed structure named {', '.join(unknown)} for a target size; "
+                        f"the meshed ones are {', '.join(meshed)}")
+    if bad := {n: h for n, h in sizes.items() if not (math.isfinite(h) and h > 0)}:
+        raise MeshError(f"target sizes must be positive mm, got {bad}")
+    return phantoms_organ_mesh(ph, regions,
+                               {label_of[n]: float(h) for n, h in sizes.items()} or None)
 
 
 def _slug(text: str) -> str:

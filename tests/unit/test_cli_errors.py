@@ -248,6 +248,8 @@ CASES = [
     ("mesh-over-time-limit", MESH + ["--max-minutes", "0.001"], ["--max-minutes", "--force"]),
     ("mesh-two-rois-one-name", _with(MESH_RS, structures="{d}/rs_two_gtv.dcm"),
      ["2 ROIs named 'GTV'", "--roi 'GTV (2)'"]),
+    ("demo-size-unreadable", ["demo", "--size-mm", "tumour", "-o", "{o}/demo"],
+     ["--size-mm", "cannot read 'tumour'", "tumour=14"]),
     # --- outputs: checked before any work, never inside an input folder
     ("export-dose-into-ct-series", _with(EXPORT, like="{d}/dicom_ok")[:-1]
      + ["{d}/dicom_ok/rd.dcm"], ["inside the input folder", "DICOM series"]),

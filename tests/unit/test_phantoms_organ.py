@@ -51,3 +51,25 @@ def test_organ_mesher_option_of_make_phantom() -> None:
     assert (n.max(axis=1) > 0.99).mean() < 0.2
     with pytest.raises(TetdoseError, match="unknown mesher"):
         make_phantom("liver", size="small", mesher="gmsh")
+
+
+def test_study_mesh_sizes_by_name_coarsen_the_tumour_only_as_asked(thorax, moving) -> None:  # noqa: ANN001
+    """`tetdose demo --size-mm tumour=H`: a larger target edge gives fewer, larger tumour tets
+    whose union keeps the label's volume; a name that is not meshed is refused, naming those
+    that are."""
+    from tetdose.study import MOVING
+    from tetdose.study import organ_mesh as study_mesh
+
+    tumour = 6
+    coarse = study_mesh(thorax, MOVING, {"tumour": 20.0})
+    fine = moving.region == tumour
+    big = coarse.region == tumour
+    assert big.sum() < 0.8 * fine.sum()
+    assert np.median(coarse.volumes_mm3[big]) > 1.2 * np.median(moving.volumes_mm3[fine])
+    voxel = np.isin(thorax.labels.array, THORAX_MOVING[tumour]).sum() \
+        * thorax.labels.grid.voxel_volume_mm3
+    assert coarse.volumes_mm3[big].sum() == pytest.approx(voxel, rel=0.05)
+    with pytest.raises(TetdoseError, match="no meshed structure named liver.*lung, tumour"):
+        study_mesh(thorax, MOVING, {"liver": 10.0})
+    with pytest.raises(TetdoseError, match="positive mm"):
+        study_mesh(thorax, MOVING, {"tumour": -1.0})

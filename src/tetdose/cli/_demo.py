@@ -25,9 +25,23 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--secondary-photon-splitting", type=int_at_least(1), metavar="N2",
                    help="copies of every later photon of weight 1 (as `tetdose dose`; the "
                    "demo's default 32)")
+    p.add_argument("--size-mm", type=_sizes, metavar="NAME=H,…",
+                   help="target edge [mm] of meshed structures, e.g. 'tumour=14' (as `tetdose "
+                   "mesh --size-mm`, by name): larger tets trade resolution for per-tet "
+                   "precision (bench/demo_precision.py)")
     p.add_argument("--quasi-random", action=argparse.BooleanOptionalAction, default=None,
                    help="source photons from scrambled Sobol points (as `tetdose dose`; on by "
                    "default in the demo)")
+
+
+def _sizes(text: str) -> tuple[tuple[str, float], ...]:
+    """'tumour=14,lung=10' → (("tumour", 14.0), ("lung", 10.0))."""
+    try:
+        return tuple((name.strip(), float(h)) for name, h in
+                     (item.split("=") for item in text.split(",")))
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f"cannot read {text!r}; write tumour=14 or "
+                                         "tumour=14,lung=10") from exc
 
 
 def run(args: argparse.Namespace) -> int:
@@ -38,6 +52,8 @@ def run(args: argparse.Namespace) -> int:
                                   ("splitting_scheme", args.splitting_scheme),
                                   ("secondary_photon_splitting",
                                    args.secondary_photon_splitting)) if v}
+    if args.size_mm:
+        changes["mesh_size_mm"] = args.size_mm
     if args.quasi_random is not None:
         changes["quasi_random"] = args.quasi_random
     if ((args.photon_splitting and not args.secondary_photon_splitting)
