@@ -13,7 +13,6 @@ folder is written atomically: an interrupted run leaves the previous output unto
 
 from __future__ import annotations
 
-import math
 import os
 import shutil
 import time
@@ -499,8 +498,6 @@ def organ_mesh(ph: Phantom, names: tuple[str, ...],
     if unknown := sorted(set(sizes) - set(meshed)):
         raise MeshError(f"no meshed structure named {', '.join(unknown)} for a target size; "
                         f"the meshed ones are {', '.join(meshed)}")
-    if bad := {n: h for n, h in sizes.items() if not (math.isfinite(h) and h > 0)}:
-        raise MeshError(f"target sizes must be positive mm, got {bad}")
     return phantoms_organ_mesh(ph, regions,
                                {label_of[n]: float(h) for n, h in sizes.items()} or None)
 
