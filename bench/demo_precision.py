@@ -29,7 +29,6 @@ from pathlib import Path
 import numpy as np
 
 from tetdose.core.io import read_image, read_mesh
-from tetdose.core.mesh import signed_volumes_mm3
 from tetdose.study import StudyConfig, run_study
 
 TARGET_PHASE_PCT, TARGET_ACC_PCT, TARGET_S = 5.0, 2.0, 180.0
@@ -44,7 +43,7 @@ def variant(out: Path, size: str, histories: int) -> None:
     total = time.perf_counter() - start
     label = s["phantom"]["labels"]["tumour"]
     mesh = read_mesh(out / "phantom" / "organ_mesh.vtu")
-    vol = signed_volumes_mm3(mesh.points_mm, mesh.tets)[mesh.region == label]
+    vol = mesh.volumes_mm3[mesh.region == label]
     labels = np.asarray(read_image(out / "phantom" / "labels.nrrd").array)
     voxel_mm3 = float(np.prod(s["phantom"]["spacing_mm"]))
     label_mm3 = float(np.count_nonzero(labels == label)) * voxel_mm3

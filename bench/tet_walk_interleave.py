@@ -12,9 +12,9 @@ one ray at a time and two interleaved; best of three per case, 1 thread. Run::
 
     NUMBA_CACHE_DIR=.numba-cache .venv/bin/python bench/tet_walk_interleave.py
 
-Measured at stop 42 (bench/README), six runs: 25–32 ns per crossing cached (two rays in step
-31–46 ns: the extra bookkeeping); on the 216 k tets 107–201 ns for one ray and 104–147 ns for two,
-within a run 0–10 % faster in five runs of six (37 % once, against an outlying single-ray
+Measured at stop 42 (bench/README), seven runs: 25–32 ns per crossing cached (two rays in step
+31–46 ns: the extra bookkeeping); on the 216 k tets 92–201 ns for one ray and 92–147 ns for two,
+within a run 0–10 % faster in six runs of seven (37 % once, against an outlying single-ray
 figure). The misses hardly overlap, so walking split rays in pairs (or a ray as two halves) would
 save at most a few per cent of a tet history, whose walk is a third of it.
 """
@@ -28,7 +28,8 @@ import numpy as np
 from bench_precision import cube_mesh
 from numba import njit
 
-from tetdose.transport.geometry._tet import exit_face, locate_point, next_tet
+from tetdose.core.transfer import locate_points
+from tetdose.transport.geometry._tet import exit_face, next_tet
 from tetdose.transport.geometry.tets import mesh_geometry, morton_order
 
 RAYS = 200_000
@@ -73,14 +74,6 @@ def walk(g, start, p, d, pair):
     return crossings, total
 
 
-@njit
-def _locate(g, p):
-    out = np.empty(p.shape[0], np.int64)
-    for i in range(p.shape[0]):
-        out[i] = locate_point(g, p[i, 0], p[i, 1], p[i, 2])
-    return out
-
-
 def main() -> None:
     rng = np.random.default_rng(1)
     p = rng.uniform([-140.0, -140.0, 10.0], [140.0, 140.0, 290.0], (RAYS, 3))
@@ -88,9 +81,12 @@ def main() -> None:
     d /= np.linalg.norm(d, axis=1)[:, None]
     for cubes in (11, 33):
         mesh = cube_mesh(cubes)
-        g = mesh_geometry(mesh, np.ones(mesh.n_points), np.zeros(mesh.n_tets, np.int32),
-                          morton_order(mesh.centroids_mm))
-        start = _locate(g, p)
+        order = morton_order(mesh.centroids_mm)
+        g = mesh_geometry(mesh, np.ones(mesh.n_points), np.zeros(mesh.n_tets, np.int32), order)
+        kernel_tet = np.empty_like(order)
+        kernel_tet[order] = np.arange(len(order))  # mesh tet → its index in the kernel's order
+        tet = locate_points(mesh, p)[0]
+        start = np.where(tet >= 0, kernel_tet[tet], -1)
         bare = Walk(g.planes, g.link)
         mb = (g.planes.nbytes + g.link.nbytes) / 1e6
         for pair in (False, True):
