@@ -12,7 +12,7 @@ one ray at a time and two interleaved; best of three per case, 1 thread. Run::
 
     NUMBA_CACHE_DIR=.numba-cache .venv/bin/python bench/tet_walk_interleave.py
 
-Measured at stop 42 (bench/README), seven runs: 25–32 ns per crossing cached (two rays in step
+Measured at stop 42 (bench/README), seven runs: 22–32 ns per crossing cached (two rays in step
 31–46 ns: the extra bookkeeping); on the 216 k tets 92–201 ns for one ray and 92–147 ns for two,
 within a run 0–10 % faster in six runs of seven (37 % once, against an outlying single-ray
 figure). The misses hardly overlap, so walking split rays in pairs (or a ray as two halves) would
